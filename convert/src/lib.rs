@@ -1,0 +1,40 @@
+//! # q3gltf-convert
+//!
+//! Converts Quake III engine maps (IBSP 46 / 47, RBSP 1) into glTF 2.0 scenes: geometry
+//! (polygons, triangle meshes, tessellated Bezier patches), materials resolved through
+//! shader scripts with their textures, and the baked lightmaps as a second UV set
+//! (TEXCOORD_1) with the lightmap atlas images.
+//!
+//! Module map (see ARCHITECTURE.md for the data flow and invariants):
+//!
+//! * [`bsp`]: the file format, typed and bounds-checked (reader and writer).
+//! * [`vfs`]: game directories and `.pk3` archives as one file system.
+//! * [`shader`]: shader script parsing.
+//! * [`material`]: shader + scripts -> visibility, albedo image, alpha, sidedness.
+//! * [`texture`]: image files -> glTF-ready PNG/JPEG bytes, with limits.
+//! * [`entities`]: the entity lump.
+//! * [`patch`]: adaptive, stitched Bezier patch tessellation.
+//! * [`lightmaps`], [`atlas`]: lightmap pages and their packing.
+//! * [`units`]: axes, scale and the radiometric conversions.
+//! * [`scene`]: the converted scene; [`gltf_out`]: writing it as `.gltf`/`.glb`.
+//! * [`output`]: atomic files and safe names.
+//! * [`pipeline`]: the whole conversion.
+
+pub mod atlas;
+pub mod bsp;
+pub mod entities;
+pub mod error;
+pub mod gltf_out;
+pub mod lightmaps;
+pub mod material;
+pub mod output;
+pub mod patch;
+pub mod pipeline;
+pub mod scene;
+pub mod shader;
+pub mod texture;
+pub mod units;
+pub mod vfs;
+
+pub use error::Error;
+pub use pipeline::{convert, load, MapSource, Options, Summary};

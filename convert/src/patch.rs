@@ -1,0 +1,460 @@
+//! Bezier patch tessellation, adaptive like the engine and crack-free across patches.
+//!
+//! A patch surface is a `w x h` grid of control points (both odd) forming
+//! `(w-1)/2 x (h-1)/2` biquadratic Bezier patches. Per direction and per span (one patch
+//! wide) we choose breakpoints t in (0, 1):
+//!
+//! 1. **Adaptive**: ioquake3's `R_SubdividePatchToGrid` criterion. A segment [a, b] of
+//!    a span is split at its middle while, on any line of the grid, the curve point at
+//!    the segment's middle, `(q0 + 2 q1 + q2) / 4` of the segment's own control points,
+//!    lies farther than the tolerance from the chord `q0 q2`. The worst segment is split
+//!    first, up to the engine's limit of 65 grid lines per direction.
+//! 2. **Stitched**: a boundary span whose three control points equal a boundary span of
+//!    another patch (in either direction and orientation) gets the union of both sets of
+//!    breakpoints, repeated until nothing changes. Neighbouring patches therefore place
+//!    the same vertices along shared edges.
+//! 3. **Exact shared vertices**: breakpoints are dyadic (k / 2^16, exact in f64), and
+//!    vertices on a boundary are evaluated from that boundary's three control points
+//!    in a canonical order, so both neighbours compute bitwise identical positions.
+//!
+//! Vertices are evaluated on the true surface (the tensor-product Bezier), with every
+//! attribute (normal, texture and lightmap coordinates, colour) interpolated by the same
+//! weights. Triangles are emitted in the engine's order (clockwise from the front), like
+//! the BSP's own polygons; the caller reverses them for glTF.
+
+use crate::bsp::DrawVert;
+use std::collections::{BTreeSet, HashMap};
+
+/// Breakpoints are integers over this denominator (2^16): exact in f64, and reversal
+/// `t -> 1 - t` is exact too.
+const DENOM: u32 = 1 << 16;
+/// The engine's MAX_GRID_SIZE: lines per direction from adaptive subdivision.
+pub const MAX_GRID: usize = 65;
+
+/// Input: one patch surface's control grid (row-major, `width` points per row).
+#[derive(Debug, Clone, Copy)]
+pub struct PatchInput<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub ctrl: &'a [DrawVert],
+}
+
+/// Output: the tessellated grid of one patch surface.
+#[derive(Debug, Clone)]
+pub struct Tessellated {
+    pub width: usize,
+    pub height: usize,
+    /// Row-major `width x height` vertices on the true surface.
+    pub verts: Vec<DrawVert>,
+    /// Triangles in engine order (clockwise from the front); triangles with two
+    /// coincident corners are left out.
+    pub indices: Vec<u32>,
+    /// Parameter of each grid column: `span + t`, in [0, (control width - 1) / 2].
+    pub u_params: Vec<f64>,
+    /// Parameter of each grid row, likewise.
+    pub v_params: Vec<f64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PatchError {
+    #[error("patch tessellation needs {needed} vertices, over the budget of {budget}")]
+    OverBudget { needed: usize, budget: usize },
+}
+
+type Pos = [f64; 3];
+
+fn pos(v: &DrawVert) -> Pos {
+    [v.xyz[0] as f64, v.xyz[1] as f64, v.xyz[2] as f64]
+}
+
+fn sub(a: Pos, b: Pos) -> Pos {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+fn dot(a: Pos, b: Pos) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+fn cross(a: Pos, b: Pos) -> Pos {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// Quadratic Bernstein weights at t.
+fn bernstein(t: f64) -> [f64; 3] {
+    let s = 1.0 - t;
+    [s * s, 2.0 * s * t, t * t]
+}
+
+/// Blossom of the quadratic at (a, b): the middle control point of the sub-curve [a, b].
+fn blossom(p: [Pos; 3], a: f64, b: f64) -> Pos {
+    let w = [(1.0 - a) * (1.0 - b), (1.0 - a) * b + a * (1.0 - b), a * b];
+    std::array::from_fn(|k| w[0] * p[0][k] + w[1] * p[1][k] + w[2] * p[2][k])
+}
+
+fn eval_curve(p: [Pos; 3], t: f64) -> Pos {
+    let w = bernstein(t);
+    std::array::from_fn(|k| w[0] * p[0][k] + w[1] * p[1][k] + w[2] * p[2][k])
+}
+
+/// The engine's flatness measure of the sub-curve [a, b]: distance of its middle point
+/// from the chord line.
+fn segment_error(p: [Pos; 3], a: f64, b: f64) -> f64 {
+    let q0 = eval_curve(p, a);
+    let q2 = eval_curve(p, b);
+    let q1 = blossom(p, a, b);
+    let mid: Pos = std::array::from_fn(|k| (q0[k] + 2.0 * q1[k] + q2[k]) * 0.25);
+    let d = sub(q2, q0);
+    let m = sub(mid, q0);
+    let len2 = dot(d, d);
+    if len2 <= 1e-24 {
+        return dot(m, m).sqrt();
+    }
+    let along = dot(m, d) / len2;
+    let perp = sub(m, [d[0] * along, d[1] * along, d[2] * along]);
+    dot(perp, perp).sqrt()
+}
+
+/// Control point of line `line`, position `k` along direction `dir` (0: along a row,
+/// i.e. across columns; 1: along a column, across rows).
+fn ctrl_at<'a>(p: &PatchInput<'a>, dir: usize, line: usize, k: usize) -> &'a DrawVert {
+    if dir == 0 {
+        &p.ctrl[line * p.width + k]
+    } else {
+        &p.ctrl[k * p.width + line]
+    }
+}
+
+fn lines(p: &PatchInput, dir: usize) -> usize {
+    if dir == 0 {
+        p.height
+    } else {
+        p.width
+    }
+}
+
+fn spans(p: &PatchInput, dir: usize) -> usize {
+    (if dir == 0 { p.width } else { p.height } - 1) / 2
+}
+
+fn span_curve(p: &PatchInput, dir: usize, line: usize, span: usize) -> [Pos; 3] {
+    std::array::from_fn(|k| pos(ctrl_at(p, dir, line, 2 * span + k)))
+}
+
+/// Breakpoints of one direction of one patch: per span, interior numerators in (0, DENOM).
+type Breaks = Vec<BTreeSet<u32>>;
+
+/// Step 1: adaptive breakpoints for one direction.
+fn adaptive(p: &PatchInput, dir: usize, tolerance: f64) -> Breaks {
+    let nspans = spans(p, dir);
+    let nlines = lines(p, dir);
+    let curves: Vec<Vec<[Pos; 3]>> =
+        (0..nspans).map(|s| (0..nlines).map(|l| span_curve(p, dir, l, s)).collect()).collect();
+    let err = |s: usize, a: u32, b: u32| -> f64 {
+        let (a, b) = (a as f64 / DENOM as f64, b as f64 / DENOM as f64);
+        curves[s].iter().map(|c| segment_error(*c, a, b)).fold(0.0, f64::max)
+    };
+    // Segments as (span, a, b, error).
+    let mut segs: Vec<(usize, u32, u32, f64)> = (0..nspans).map(|s| (s, 0, DENOM, err(s, 0, DENOM))).collect();
+    while segs.len() < MAX_GRID - 1 {
+        // Worst segment; ties broken by position, for determinism.
+        let Some((i, _)) = segs
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.3 > tolerance && s.2 - s.1 >= 2)
+            .max_by(|x, y| x.1 .3.total_cmp(&y.1 .3).then(y.0.cmp(&x.0)))
+        else {
+            break;
+        };
+        let (s, a, b, _) = segs[i];
+        let m = (a + b) / 2;
+        segs[i] = (s, a, m, err(s, a, m));
+        segs.insert(i + 1, (s, m, b, err(s, m, b)));
+    }
+    let mut breaks: Breaks = vec![BTreeSet::new(); nspans];
+    for (s, a, _, _) in segs {
+        if a > 0 {
+            breaks[s].insert(a);
+        }
+    }
+    breaks
+}
+
+/// Exact key of a boundary span: its three control positions as bits, in canonical
+/// order, plus whether the canonical order reverses the span.
+fn span_key(c: [&DrawVert; 3]) -> ([[u32; 3]; 3], bool) {
+    let bits = |v: &DrawVert| v.xyz.map(|x| (x + 0.0).to_bits()); // + 0.0 folds -0 into 0
+    let (a, b, c2) = (bits(c[0]), bits(c[1]), bits(c[2]));
+    if a <= c2 {
+        ([a, b, c2], false)
+    } else {
+        ([c2, b, a], true)
+    }
+}
+
+/// Tessellates a set of patch surfaces together, stitching shared edges.
+///
+/// `tolerance` is in the units of the control points (Quake units for BSP data);
+/// `vertex_budget` bounds the total number of output vertices.
+pub fn tessellate_all(patches: &[PatchInput], tolerance: f64, vertex_budget: usize) -> Result<Vec<Tessellated>, PatchError> {
+    let tolerance = if tolerance.is_finite() && tolerance > 0.0 { tolerance } else { 4.0 };
+    let mut breaks: Vec<[Breaks; 2]> = patches.iter().map(|p| [adaptive(p, 0, tolerance), adaptive(p, 1, tolerance)]).collect();
+
+    // Step 2: group boundary spans by their exact control points.
+    type Member = (usize, usize, usize, bool); // patch, dir, span, reversed
+    let mut groups: HashMap<[[u32; 3]; 3], Vec<Member>> = HashMap::new();
+    for (pi, p) in patches.iter().enumerate() {
+        for dir in 0..2 {
+            let last = lines(p, dir) - 1;
+            for line in [0, last] {
+                for s in 0..spans(p, dir) {
+                    let c = [ctrl_at(p, dir, line, 2 * s), ctrl_at(p, dir, line, 2 * s + 1), ctrl_at(p, dir, line, 2 * s + 2)];
+                    let (key, rev) = span_key(c);
+                    let m = (pi, dir, s, rev);
+                    let g = groups.entry(key).or_default();
+                    if !g.contains(&m) {
+                        g.push(m);
+                    }
+                }
+            }
+        }
+    }
+    let mut shared: Vec<Vec<Member>> = groups.into_values().filter(|g| g.len() > 1).collect();
+    shared.sort(); // determinism: HashMap order must not matter
+    let flip = |t: u32, rev: bool| if rev { DENOM - t } else { t };
+    loop {
+        let mut changed = false;
+        for g in &shared {
+            let union: BTreeSet<u32> =
+                g.iter().flat_map(|&(pi, d, s, rev)| breaks[pi][d][s].iter().map(move |&t| flip(t, rev))).collect();
+            for &(pi, d, s, rev) in g {
+                let mine: BTreeSet<u32> = union.iter().map(|&t| flip(t, rev)).collect();
+                if mine != breaks[pi][d][s] {
+                    breaks[pi][d][s] = mine;
+                    changed = true;
+                }
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+
+    // Budget check before allocating any output.
+    let grid_len = |b: &Breaks| 1 + b.iter().map(|s| s.len() + 1).sum::<usize>();
+    let needed: usize = breaks.iter().map(|b| grid_len(&b[0]) * grid_len(&b[1])).sum();
+    if needed > vertex_budget {
+        return Err(PatchError::OverBudget { needed, budget: vertex_budget });
+    }
+
+    Ok(patches.iter().zip(&breaks).map(|(p, b)| build_grid(p, b)).collect())
+}
+
+/// (span, t) for each grid line of one direction.
+fn params(b: &Breaks) -> Vec<(usize, f64)> {
+    let mut out = vec![(0, 0.0)];
+    for (s, set) in b.iter().enumerate() {
+        out.extend(set.iter().map(|&t| (s, t as f64 / DENOM as f64)));
+        out.push((s, 1.0));
+    }
+    out
+}
+
+/// Number of f64 attributes carried per vertex: xyz, normal, st, lightmap, rgba.
+const NA: usize = 14;
+
+fn attrs(v: &DrawVert) -> [f64; NA] {
+    let mut a = [0.0; NA];
+    for k in 0..3 {
+        a[k] = v.xyz[k] as f64;
+        a[3 + k] = v.normal[k] as f64;
+    }
+    a[6] = v.st[0] as f64;
+    a[7] = v.st[1] as f64;
+    a[8] = v.lightmap[0] as f64;
+    a[9] = v.lightmap[1] as f64;
+    for k in 0..4 {
+        a[10 + k] = v.color[k] as f64;
+    }
+    a
+}
+
+/// Weighted sum of three attribute vectors, always in the given order.
+fn combine(w: [f64; 3], a: [&[f64; NA]; 3]) -> [f64; NA] {
+    std::array::from_fn(|k| w[0] * a[0][k] + w[1] * a[1][k] + w[2] * a[2][k])
+}
+
+/// Point on a boundary curve in canonical control order, so that every patch sharing the
+/// curve computes the same bits.
+fn eval_boundary(c: [&DrawVert; 3], t: f64) -> [f64; NA] {
+    let (_, rev) = span_key(c);
+    let (c, t) = if rev { ([c[2], c[1], c[0]], 1.0 - t) } else { (c, t) };
+    let a = [attrs(c[0]), attrs(c[1]), attrs(c[2])];
+    combine(bernstein(t), [&a[0], &a[1], &a[2]])
+}
+
+fn build_grid(p: &PatchInput, b: &[Breaks; 2]) -> Tessellated {
+    let cols = params(&b[0]);
+    let rows = params(&b[1]);
+    let (w, h) = (cols.len(), rows.len());
+    let ctrl_attrs: Vec<[f64; NA]> = p.ctrl.iter().map(attrs).collect();
+    let mut verts = Vec::with_capacity(w * h);
+    for (ri, &(sv, tv)) in rows.iter().enumerate() {
+        for (ci, &(su, tu)) in cols.iter().enumerate() {
+            let a = if ri == 0 || ri == h - 1 {
+                let line = if ri == 0 { 0 } else { p.height - 1 };
+                eval_boundary(std::array::from_fn(|k| ctrl_at(p, 0, line, 2 * su + k)), tu)
+            } else if ci == 0 || ci == w - 1 {
+                let line = if ci == 0 { 0 } else { p.width - 1 };
+                eval_boundary(std::array::from_fn(|k| ctrl_at(p, 1, line, 2 * sv + k)), tv)
+            } else {
+                let wu = bernstein(tu);
+                let rowv: [[f64; NA]; 3] = std::array::from_fn(|m| {
+                    let r = (2 * sv + m) * p.width + 2 * su;
+                    combine(wu, [&ctrl_attrs[r], &ctrl_attrs[r + 1], &ctrl_attrs[r + 2]])
+                });
+                combine(bernstein(tv), [&rowv[0], &rowv[1], &rowv[2]])
+            };
+            let mut normal = [a[3], a[4], a[5]];
+            let len = dot(normal, normal).sqrt();
+            if len > 1e-12 {
+                normal = normal.map(|x| x / len);
+            } else {
+                normal = surface_normal(p, su, tu, sv, tv);
+            }
+            verts.push(DrawVert {
+                xyz: [a[0] as f32, a[1] as f32, a[2] as f32],
+                normal: normal.map(|x| x as f32),
+                st: [a[6] as f32, a[7] as f32],
+                lightmap: [a[8] as f32, a[9] as f32],
+                color: std::array::from_fn(|k| a[10 + k].round().clamp(0.0, 255.0) as u8),
+            });
+        }
+    }
+    let mut indices = Vec::with_capacity((w - 1) * (h - 1) * 6);
+    for i in 0..h - 1 {
+        for j in 0..w - 1 {
+            let v2 = (i * w + j) as u32;
+            let v1 = v2 + 1;
+            let v3 = v2 + w as u32;
+            let v4 = v3 + 1;
+            for tri in [[v2, v3, v1], [v1, v3, v4]] {
+                let [a, b, c] = tri.map(|k| verts[k as usize].xyz);
+                if a != b && b != c && a != c {
+                    indices.extend_from_slice(&tri);
+                }
+            }
+        }
+    }
+    Tessellated {
+        width: w,
+        height: h,
+        verts,
+        indices,
+        u_params: cols.iter().map(|&(s, t)| s as f64 + t).collect(),
+        v_params: rows.iter().map(|&(s, t)| s as f64 + t).collect(),
+    }
+}
+
+/// Geometric normal from the surface derivatives, oriented like the engine's winding
+/// (its front is where the clockwise triangles face), for points where the interpolated
+/// vertex normals cancel out.
+fn surface_normal(p: &PatchInput, su: usize, tu: f64, sv: usize, tv: f64) -> Pos {
+    let du = derivative(p, su, tu, sv, tv, 0);
+    let dv = derivative(p, su, tu, sv, tv, 1);
+    // Engine triangles (v2, v3, v1): edge to the next row, then to the next column:
+    // front normal = dv x du for clockwise-front winding.
+    let n = cross(dv, du);
+    let len = dot(n, n).sqrt();
+    if len > 1e-12 {
+        n.map(|x| x / len)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
+
+/// Partial derivative of the position at (span su + tu, span sv + tv).
+pub fn derivative(p: &PatchInput, su: usize, tu: f64, sv: usize, tv: f64, dir: usize) -> Pos {
+    let d = |t: f64| [2.0 * (t - 1.0), 2.0 - 4.0 * t, 2.0 * t];
+    let (wu, wv) = if dir == 0 { (d(tu), bernstein(tv)) } else { (bernstein(tu), d(tv)) };
+    let mut out = [0.0; 3];
+    for (m, &wvm) in wv.iter().enumerate() {
+        for (n, &wun) in wu.iter().enumerate() {
+            let c = pos(&p.ctrl[(2 * sv + m) * p.width + 2 * su + n]);
+            for k in 0..3 {
+                out[k] += wvm * wun * c[k];
+            }
+        }
+    }
+    out
+}
+
+/// Position on the true surface at grid parameters (u, v) in span units.
+pub fn surface_point(p: &PatchInput, u: f64, v: f64) -> Pos {
+    let nu = spans(p, 0);
+    let nv = spans(p, 1);
+    let su = (u.floor().max(0.0) as usize).min(nu - 1);
+    let sv = (v.floor().max(0.0) as usize).min(nv - 1);
+    let (wu, wv) = (bernstein(u - su as f64), bernstein(v - sv as f64));
+    let mut out = [0.0; 3];
+    for (m, &wvm) in wv.iter().enumerate() {
+        for (n, &wun) in wu.iter().enumerate() {
+            let c = pos(&p.ctrl[(2 * sv + m) * p.width + 2 * su + n]);
+            for k in 0..3 {
+                out[k] += wvm * wun * c[k];
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f32, y: f32, z: f32) -> DrawVert {
+        DrawVert { xyz: [x, y, z], normal: [0.0, 0.0, 1.0], ..Default::default() }
+    }
+
+    /// A 3x3 arch: flat in x, curved in y-z.
+    fn arch(x0: f32, x1: f32, height: f32) -> Vec<DrawVert> {
+        let mut c = Vec::new();
+        for (y, z) in [(0.0, 0.0), (64.0, height), (128.0, 0.0)] {
+            for x in [x0, (x0 + x1) / 2.0, x1] {
+                c.push(v(x, y, z));
+            }
+        }
+        c
+    }
+
+    #[test]
+    fn flat_patch_is_two_triangles_and_curved_is_subdivided() {
+        let flat = arch(0.0, 64.0, 0.0);
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &flat }], 4.0, 1 << 20).unwrap();
+        assert_eq!((t[0].width, t[0].height), (2, 2));
+        assert_eq!(t[0].indices.len(), 6);
+        let curved = arch(0.0, 64.0, 128.0);
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &curved }], 4.0, 1 << 20).unwrap();
+        assert_eq!(t[0].width, 2, "straight direction stays at its ends");
+        assert!(t[0].height > 4, "curved direction is subdivided: {}", t[0].height);
+    }
+
+    #[test]
+    fn neighbours_with_different_curvature_share_edge_vertices() {
+        // Patch A is flat across x; patch B (sharing A's x=64 edge) bends in x, which makes
+        // it subdivide more along y than A alone would.
+        let a = arch(0.0, 64.0, 32.0);
+        let mut b = arch(64.0, 128.0, 32.0);
+        for r in 0..3 {
+            b[r * 3 + 1].xyz[2] += 200.0; // bulge B's middle column
+        }
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &a }, PatchInput { width: 3, height: 3, ctrl: &b }], 1.0, 1 << 20)
+            .unwrap();
+        let edge_a: Vec<[f32; 3]> = (0..t[0].height).map(|r| t[0].verts[r * t[0].width + t[0].width - 1].xyz).collect();
+        let edge_b: Vec<[f32; 3]> = (0..t[1].height).map(|r| t[1].verts[r * t[1].width].xyz).collect();
+        assert_eq!(edge_a, edge_b);
+    }
+
+    #[test]
+    fn budget_is_enforced() {
+        let curved = arch(0.0, 64.0, 128.0);
+        assert!(tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &curved }], 0.001, 10).is_err());
+    }
+}
