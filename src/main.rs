@@ -156,6 +156,9 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
         "  surfaces: {} polygons, {} patches, {} meshes, {} flares; {} hidden, {} sky, {} invalid",
         c.polygon, c.patch, c.mesh, c.flare, c.hidden, c.sky, c.invalid
     );
+    if c.repaired_normals > 0 {
+        println!("  normals: {} zero BSP normals replaced by their triangles' mean normal", c.repaired_normals);
+    }
     println!("  lighting: {} lightmapped, {} vertex-lit, {} unlit surfaces; {} lightmap pages in {} atlas image(s){}",
         c.lightmapped, c.vertex_lit, c.unlit, s.lightmap_pages, s.lightmap_atlases, if s.deluxe { " (deluxe map)" } else { "" });
     println!("  output: {} triangles, {} vertices, {} materials, {} images, {} entities, {} lights, {:.1} MB",

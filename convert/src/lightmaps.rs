@@ -78,7 +78,9 @@ pub fn gather(bsp: &Bsp, vfs: &Vfs, map_name: &str, limits: Limits) -> Pages {
     };
     // Deluxe maps interleave direction pages: every used index is even and the page
     // count is even (q3map2 -deluxe).
-    out.deluxe = available.len() >= 2 && available.len() % 2 == 0 && used.iter().all(|l| l % 2 == 0);
+    // With a single used page the pattern says nothing; keeping the pages is harmless.
+    let distinct: std::collections::BTreeSet<i32> = used.iter().copied().collect();
+    out.deluxe = distinct.len() >= 2 && available.len() % 2 == 0 && used.iter().all(|l| l % 2 == 0);
     let step = if out.deluxe { 2 } else { 1 };
     out.index = vec![None; available.len()];
     for (i, page) in available.into_iter().enumerate() {

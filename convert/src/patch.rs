@@ -4,11 +4,12 @@
 //! `(w-1)/2 x (h-1)/2` biquadratic Bezier patches. Per direction and per span (one patch
 //! wide) we choose breakpoints t in (0, 1):
 //!
-//! 1. **Adaptive**: ioquake3's `R_SubdividePatchToGrid` criterion. A segment [a, b] of
-//!    a span is split at its middle while, on any line of the grid, the curve point at
-//!    the segment's middle, `(q0 + 2 q1 + q2) / 4` of the segment's own control points,
-//!    lies farther than the tolerance from the chord `q0 q2`. The worst segment is split
-//!    first, up to the engine's limit of 65 grid lines per direction.
+//! 1. **Adaptive**, like ioquake3's `R_SubdividePatchToGrid`: a segment [a, b] of a span
+//!    is split at its middle while, on any line of the grid, the curve point at the
+//!    segment's middle, `(q0 + 2 q1 + q2) / 4` of the segment's own control points, lies
+//!    farther than the tolerance from the chord's middle (the engine measures from the
+//!    chord line instead; see [`segment_error`]). The worst segment is split first, up
+//!    to [`MAX_GRID`] grid lines per direction.
 //! 2. **Stitched**: a boundary span whose three control points equal a boundary span of
 //!    another patch (in either direction and orientation) gets the union of both sets of
 //!    breakpoints, repeated until nothing changes. Neighbouring patches therefore place
@@ -16,6 +17,11 @@
 //! 3. **Exact shared vertices**: breakpoints are dyadic (k / 2^16, exact in f64), and
 //!    vertices on a boundary are evaluated from that boundary's three control points
 //!    in a canonical order, so both neighbours compute bitwise identical positions.
+//! 4. **No T-junctions**: where boundaries touch without sharing control points (a
+//!    straight edge with a shifted middle point, an edge covering part of a longer one),
+//!    a boundary vertex lying on another patch's boundary edge is inserted into that
+//!    edge, bit for bit, and the edge's triangle becomes a fan (repeated until no
+//!    vertex is inserted, since an inserted vertex can lie on a third patch's edge).
 //!
 //! Vertices are evaluated on the true surface (the tensor-product Bezier), with every
 //! attribute (normal, texture and lightmap coordinates, colour) interpolated by the same
@@ -23,13 +29,14 @@
 //! the BSP's own polygons; the caller reverses them for glTF.
 
 use crate::bsp::DrawVert;
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// Breakpoints are integers over this denominator (2^16): exact in f64, and reversal
 /// `t -> 1 - t` is exact too.
 const DENOM: u32 = 1 << 16;
-/// The engine's MAX_GRID_SIZE: lines per direction from adaptive subdivision.
-pub const MAX_GRID: usize = 65;
+/// Most grid lines per direction from adaptive subdivision (the engine's MAX_GRID_SIZE
+/// is 65; we allow more so that large curved patches still meet the tolerance).
+pub const MAX_GRID: usize = 257;
 
 /// Input: one patch surface's control grid (row-major, `width` points per row).
 #[derive(Debug, Clone, Copy)]
@@ -44,7 +51,8 @@ pub struct PatchInput<'a> {
 pub struct Tessellated {
     pub width: usize,
     pub height: usize,
-    /// Row-major `width x height` vertices on the true surface.
+    /// Row-major `width x height` grid vertices on the true surface, followed by any
+    /// vertices inserted on boundary edges to close T-junctions with neighbours.
     pub verts: Vec<DrawVert>,
     /// Triangles in engine order (clockwise from the front); triangles with two
     /// coincident corners are left out.
@@ -94,22 +102,18 @@ fn eval_curve(p: [Pos; 3], t: f64) -> Pos {
     std::array::from_fn(|k| w[0] * p[0][k] + w[1] * p[1][k] + w[2] * p[2][k])
 }
 
-/// The engine's flatness measure of the sub-curve [a, b]: distance of its middle point
-/// from the chord line.
+/// Deviation of the sub-curve [a, b] from its chord: the distance between the curve's
+/// middle point `(q0 + 2 q1 + q2) / 4` and the chord's middle point. For a quadratic this
+/// is the largest distance between the curve and the chord at equal parameters. (The
+/// engine measures the middle point's distance from the chord *line*, which misses
+/// curves that run along the line unevenly; textures and lightmaps follow the
+/// parameterisation, so we bound that too.)
 fn segment_error(p: [Pos; 3], a: f64, b: f64) -> f64 {
     let q0 = eval_curve(p, a);
     let q2 = eval_curve(p, b);
     let q1 = blossom(p, a, b);
-    let mid: Pos = std::array::from_fn(|k| (q0[k] + 2.0 * q1[k] + q2[k]) * 0.25);
-    let d = sub(q2, q0);
-    let m = sub(mid, q0);
-    let len2 = dot(d, d);
-    if len2 <= 1e-24 {
-        return dot(m, m).sqrt();
-    }
-    let along = dot(m, d) / len2;
-    let perp = sub(m, [d[0] * along, d[1] * along, d[2] * along]);
-    dot(perp, perp).sqrt()
+    let d: Pos = std::array::from_fn(|k| (q0[k] - 2.0 * q1[k] + q2[k]) * 0.25);
+    dot(d, d).sqrt()
 }
 
 /// Control point of line `line`, position `k` along direction `dir` (0: along a row,
@@ -177,6 +181,100 @@ fn adaptive(p: &PatchInput, dir: usize, tolerance: f64) -> Breaks {
     breaks
 }
 
+/// Global parameters (span + t) of one direction's grid lines.
+fn line_params(b: &Breaks) -> Vec<f64> {
+    params(b).iter().map(|&(s, t)| s as f64 + t).collect()
+}
+
+/// Largest distance, on a 5x5 lattice of the cell [u0, u1] x [v0, v1], between the true
+/// surface and the cell's two triangles at equal parameters, and the same measured on
+/// the cell's u edges and v edges alone.
+fn cell_error(p: &PatchInput, u0: f64, u1: f64, v0: f64, v1: f64) -> (f64, f64, f64) {
+    let c00 = surface_point(p, u0, v0);
+    let c01 = surface_point(p, u1, v0);
+    let c10 = surface_point(p, u0, v1);
+    let c11 = surface_point(p, u1, v1);
+    let (mut all, mut eu, mut ev) = (0.0f64, 0.0f64, 0.0f64);
+    for i in 0..=4 {
+        for j in 0..=4 {
+            let (a, b) = (i as f64 / 4.0, j as f64 / 4.0);
+            if (i == 0 || i == 4) && (j == 0 || j == 4) {
+                continue;
+            }
+            let truth = surface_point(p, u0 + a * (u1 - u0), v0 + b * (v1 - v0));
+            // Triangles (c00, c01, c10) and (c01, c11, c10): the diagonal c01-c10.
+            let lin: Pos = if a + b <= 1.0 {
+                std::array::from_fn(|k| c00[k] + a * (c01[k] - c00[k]) + b * (c10[k] - c00[k]))
+            } else {
+                std::array::from_fn(|k| c11[k] + (1.0 - a) * (c10[k] - c11[k]) + (1.0 - b) * (c01[k] - c11[k]))
+            };
+            let d = sub(truth, lin);
+            let e = dot(d, d).sqrt();
+            all = all.max(e);
+            if j == 0 || j == 4 {
+                eu = eu.max(e);
+            }
+            if i == 0 || i == 4 {
+                ev = ev.max(e);
+            }
+        }
+    }
+    (all, eu, ev)
+}
+
+/// 2D pass: the per-direction criterion bounds the edges of each grid cell, not its
+/// inside (a twisted cell deviates in the middle). While a cell's triangles are farther
+/// than the tolerance from the surface, split its u or v segment (whichever edge error
+/// is larger, both when the twist dominates), all offending cells of a round at once.
+fn refine_cells(p: &PatchInput, b: &mut [Breaks; 2], tolerance: f64) {
+    for _round in 0..8 {
+        let us = line_params(&b[0]);
+        let vs = line_params(&b[1]);
+        let mut split_u = BTreeSet::new();
+        let mut split_v = BTreeSet::new();
+        for c in 0..us.len() - 1 {
+            for r in 0..vs.len() - 1 {
+                let (all, eu, ev) = cell_error(p, us[c], us[c + 1], vs[r], vs[r + 1]);
+                if all <= tolerance {
+                    continue;
+                }
+                if eu > 0.5 * tolerance || ev > 0.5 * tolerance {
+                    if eu >= ev {
+                        split_u.insert(c);
+                    } else {
+                        split_v.insert(r);
+                    }
+                } else {
+                    split_u.insert(c);
+                    split_v.insert(r);
+                }
+            }
+        }
+        if split_u.is_empty() && split_v.is_empty() {
+            return;
+        }
+        let mut changed = false;
+        for (dir, set, lines) in [(0, split_u, &us), (1, split_v, &vs)] {
+            for seg in set {
+                if lines.len() + 1 > MAX_GRID {
+                    break;
+                }
+                let (a, c) = (lines[seg], lines[seg + 1]);
+                let span = (a.floor() as usize).min(b[dir].len() - 1);
+                let (ta, tc) = ((a - span as f64) * DENOM as f64, (c - span as f64) * DENOM as f64);
+                let (ta, tc) = (ta.round() as u32, tc.round() as u32);
+                if tc - ta >= 2 {
+                    b[dir][span].insert((ta + tc) / 2);
+                    changed = true;
+                }
+            }
+        }
+        if !changed {
+            return;
+        }
+    }
+}
+
 /// Exact key of a boundary span: its three control positions as bits, in canonical
 /// order, plus whether the canonical order reverses the span.
 fn span_key(c: [&DrawVert; 3]) -> ([[u32; 3]; 3], bool) {
@@ -195,7 +293,14 @@ fn span_key(c: [&DrawVert; 3]) -> ([[u32; 3]; 3], bool) {
 /// `vertex_budget` bounds the total number of output vertices.
 pub fn tessellate_all(patches: &[PatchInput], tolerance: f64, vertex_budget: usize) -> Result<Vec<Tessellated>, PatchError> {
     let tolerance = if tolerance.is_finite() && tolerance > 0.0 { tolerance } else { 4.0 };
-    let mut breaks: Vec<[Breaks; 2]> = patches.iter().map(|p| [adaptive(p, 0, tolerance), adaptive(p, 1, tolerance)]).collect();
+    let mut breaks: Vec<[Breaks; 2]> = patches
+        .iter()
+        .map(|p| {
+            let mut b = [adaptive(p, 0, tolerance), adaptive(p, 1, tolerance)];
+            refine_cells(p, &mut b, tolerance);
+            b
+        })
+        .collect();
 
     // Step 2: group boundary spans by their exact control points.
     type Member = (usize, usize, usize, bool); // patch, dir, span, reversed
@@ -244,7 +349,143 @@ pub fn tessellate_all(patches: &[PatchInput], tolerance: f64, vertex_budget: usi
         return Err(PatchError::OverBudget { needed, budget: vertex_budget });
     }
 
-    Ok(patches.iter().zip(&breaks).map(|(p, b)| build_grid(p, b)).collect())
+    let mut out: Vec<Tessellated> = patches.iter().zip(&breaks).map(|(p, b)| build_grid(p, b)).collect();
+    // An inserted vertex can itself lie on a third patch's edge: repeat until none is
+    // inserted (bounded; each pass only adds vertices that already exist elsewhere).
+    for _ in 0..8 {
+        if fix_t_junctions(&mut out) == 0 {
+            break;
+        }
+    }
+    Ok(out)
+}
+
+/// Largest distance (in the units of the positions) at which a boundary vertex of one
+/// patch counts as lying on another patch's boundary edge.
+const WELD_EPS: f64 = 1e-3;
+
+/// Step 4: boundaries that touch without sharing control points (straight edges whose
+/// middle control points differ, or an edge that covers part of a longer one) can still
+/// meet with a vertex of one patch inside an edge of the other: a T-junction. Such a
+/// vertex is inserted, bit for bit, into the other patch's edge, and the triangle on
+/// that edge becomes a fan. Returns the number of vertices inserted.
+fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
+    // Boundary edges (used by one triangle) and their triangle, per patch.
+    struct Edge {
+        patch: usize,
+        a: u32,
+        b: u32,
+    }
+    let mut edges = Vec::new();
+    let mut boundary_verts: Vec<(usize, [f32; 3])> = Vec::new();
+    for (pi, t) in ts.iter().enumerate() {
+        let mut count: HashMap<(u32, u32), (usize, usize, u32, u32)> = HashMap::new();
+        for (ti, tri) in t.indices.chunks_exact(3).enumerate() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                let e = count.entry((a.min(b), a.max(b))).or_insert((0, ti, a, b));
+                e.0 += 1;
+            }
+        }
+        let mut bset = BTreeSet::new();
+        let mut local: Vec<_> = count.into_values().filter(|e| e.0 == 1).collect();
+        local.sort_by_key(|e| (e.1, e.2, e.3));
+        for (_, _, a, b) in local {
+            bset.insert(a);
+            bset.insert(b);
+            edges.push(Edge { patch: pi, a, b });
+        }
+        boundary_verts.extend(bset.into_iter().map(|v| (pi, t.verts[v as usize].xyz)));
+    }
+    if edges.is_empty() {
+        return 0;
+    }
+    let mut inserted = 0;
+    // Spatial hash of boundary vertices.
+    let cell_size = 32.0;
+    let cell = |p: Pos| p.map(|x| (x / cell_size).floor() as i64);
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, (_, p)) in boundary_verts.iter().enumerate() {
+        grid.entry(cell(p.map(|x| x as f64))).or_default().push(i);
+    }
+    // Per (patch, a, b) boundary edge: vertices to insert, with their fraction along it.
+    let mut inserts: BTreeMap<(usize, u32, u32), Vec<(f64, [f32; 3])>> = BTreeMap::new();
+    for e in &edges {
+        let t = &ts[e.patch];
+        let (pa, pb) = (t.verts[e.a as usize].xyz, t.verts[e.b as usize].xyz);
+        let (a, b) = (pa.map(|x| x as f64), pb.map(|x| x as f64));
+        let ab = sub(b, a);
+        let len2 = dot(ab, ab);
+        if len2 < 1e-12 {
+            continue;
+        }
+        let (ca, cb) = (cell(a), cell(b));
+        let mut found: Vec<(f64, [f32; 3])> = Vec::new();
+        for x in ca[0].min(cb[0]) - 1..=ca[0].max(cb[0]) + 1 {
+            for y in ca[1].min(cb[1]) - 1..=ca[1].max(cb[1]) + 1 {
+                for z in ca[2].min(cb[2]) - 1..=ca[2].max(cb[2]) + 1 {
+                    for &vi in grid.get(&[x, y, z]).into_iter().flatten() {
+                        let (vp, v) = boundary_verts[vi];
+                        if vp == e.patch || v == pa || v == pb {
+                            continue;
+                        }
+                        let p = v.map(|x| x as f64);
+                        let s = dot(sub(p, a), ab) / len2;
+                        if s <= 1e-6 || s >= 1.0 - 1e-6 {
+                            continue;
+                        }
+                        let q = [a[0] + ab[0] * s, a[1] + ab[1] * s, a[2] + ab[2] * s];
+                        let d = sub(p, q);
+                        if dot(d, d) <= WELD_EPS * WELD_EPS && !found.iter().any(|f| f.1 == v) {
+                            found.push((s, v));
+                        }
+                    }
+                }
+            }
+        }
+        if !found.is_empty() {
+            found.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.map(f32::to_bits).cmp(&y.1.map(f32::to_bits))));
+            inserts.insert((e.patch, e.a, e.b), found);
+        }
+    }
+    for ((pi, a, b), found) in inserts {
+        let t = &mut ts[pi];
+        // The triangle holding the directed edge a -> b now (an earlier split of another
+        // edge of the same triangle may have moved it), read as (a, b, c).
+        let Some((ti, c)) = t.indices.chunks_exact(3).enumerate().find_map(|(ti, tri)| {
+            (0..3).find(|&k| tri[k] == a && tri[(k + 1) % 3] == b).map(|k| (ti, tri[(k + 2) % 3]))
+        }) else {
+            continue;
+        };
+        let (va, vb) = (t.verts[a as usize], t.verts[b as usize]);
+        let mut chain = vec![a];
+        for (s, pos) in found {
+            let mut v = lerp_vert(&va, &vb, s);
+            v.xyz = pos;
+            t.verts.push(v);
+            chain.push(t.verts.len() as u32 - 1);
+        }
+        chain.push(b);
+        inserted += chain.len() - 2;
+        t.indices[ti * 3..ti * 3 + 3].copy_from_slice(&[chain[0], chain[1], c]);
+        for w in chain[1..].windows(2) {
+            t.indices.extend_from_slice(&[w[0], w[1], c]);
+        }
+    }
+    inserted
+}
+
+fn lerp_vert(a: &DrawVert, b: &DrawVert, s: f64) -> DrawVert {
+    let l = |x: f32, y: f32| (x as f64 + (y as f64 - x as f64) * s) as f32;
+    let n = [l(a.normal[0], b.normal[0]), l(a.normal[1], b.normal[1]), l(a.normal[2], b.normal[2])];
+    let len = (n.iter().map(|x| (*x as f64).powi(2)).sum::<f64>()).sqrt();
+    DrawVert {
+        xyz: [l(a.xyz[0], b.xyz[0]), l(a.xyz[1], b.xyz[1]), l(a.xyz[2], b.xyz[2])],
+        normal: if len > 1e-12 { n.map(|x| (x as f64 / len) as f32) } else { a.normal },
+        st: [l(a.st[0], b.st[0]), l(a.st[1], b.st[1])],
+        lightmap: [l(a.lightmap[0], b.lightmap[0]), l(a.lightmap[1], b.lightmap[1])],
+        color: std::array::from_fn(|k| l(a.color[k] as f32, b.color[k] as f32).round().clamp(0.0, 255.0) as u8),
+    }
 }
 
 /// (span, t) for each grid line of one direction.

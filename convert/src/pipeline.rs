@@ -93,8 +93,10 @@ pub struct SurfaceCounts {
     pub lightmapped: usize,
     pub vertex_lit: usize,
     pub unlit: usize,
-    /// Surfaces skipped because of non-finite vertex data.
+    /// Surfaces skipped because of non-finite vertex positions.
     pub invalid: usize,
+    /// Vertices whose BSP normal was zero, given the mean normal of their triangles.
+    pub repaired_normals: usize,
 }
 
 /// What a conversion did, for the report at the end.
@@ -337,10 +339,8 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
             }
             _ => SurfaceGeometry { verts: bsp.surface_verts(s).into(), indices: bsp.surface_indices(s).into() },
         };
-        let finite = geom.verts.iter().all(|v| {
-            v.xyz.iter().chain(&v.st).chain(&v.lightmap).chain(&v.normal).all(|x| x.is_finite())
-        });
-        if !finite {
+        // A non-finite position cannot be drawn; other attributes are repaired below.
+        if !geom.verts.iter().all(|v| v.xyz.iter().all(|x| x.is_finite())) {
             summary.surfaces.invalid += 1;
             continue;
         }
@@ -365,7 +365,7 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
             colors: (!matches!(lighting, Lighting::Lightmap(_))).then(Vec::new),
             ..Default::default()
         });
-        append_surface(prim, &geom, opts.scale, page.map(|p| (&atlas.placements[p], &atlas.images[atlas.placements[p].atlas])));
+        summary.surfaces.repaired_normals += append_surface(prim, &geom, opts.scale, page.map(|p| (&atlas.placements[p], &atlas.images[atlas.placements[p].atlas])));
     }
     lap(&mut summary, "meshes");
 
@@ -503,18 +503,21 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
 }
 
 /// Appends one surface to a primitive: glTF axes and meters, reversed winding, atlas UVs,
-/// unit normals (a zero normal takes the mean of its triangles' normals).
-fn append_surface(prim: &mut scene::Primitive, g: &SurfaceGeometry, scale: f64, lm: Option<(&atlas::Placement, &atlas::AtlasImage)>) {
+/// unit normals (a zero normal takes the mean of its triangles' normals). Returns the
+/// number of normals repaired so.
+fn append_surface(prim: &mut scene::Primitive, g: &SurfaceGeometry, scale: f64, lm: Option<(&atlas::Placement, &atlas::AtlasImage)>) -> usize {
     let base = prim.positions.len() as u32;
     let start = prim.positions.len();
     for v in g.verts.iter() {
         prim.positions.push(units::position(v.xyz, scale));
         let n = units::direction([v.normal[0] as f64, v.normal[1] as f64, v.normal[2] as f64]);
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        prim.normals.push(if len > 1e-6 { [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32] } else { [0.0; 3] });
-        prim.uv0.push(v.st);
+        // Zero or non-finite normals are repaired from the geometry below.
+        prim.normals.push(if len > 1e-6 && len.is_finite() { [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32] } else { [0.0; 3] });
+        let finite2 = |t: [f32; 2]| if t.iter().all(|x| x.is_finite()) { t } else { [0.0; 2] };
+        prim.uv0.push(finite2(v.st));
         if let (Some(uv1), Some((pl, img))) = (prim.uv1.as_mut(), lm) {
-            uv1.push(pl.map_uv(v.lightmap, img));
+            uv1.push(pl.map_uv(finite2(v.lightmap), img));
         } else if let Some(uv1) = prim.uv1.as_mut() {
             uv1.push([0.0, 0.0]);
         }
@@ -527,7 +530,8 @@ fn append_surface(prim: &mut scene::Primitive, g: &SurfaceGeometry, scale: f64, 
         prim.indices.extend_from_slice(&[base + t[0], base + t[2], base + t[1]]);
     }
     // Repair zero normals from the geometry.
-    if prim.normals[start..].iter().any(|n| *n == [0.0; 3]) {
+    let repaired = prim.normals[start..].iter().filter(|n| **n == [0.0; 3]).count();
+    if repaired > 0 {
         let mut acc = vec![[0.0f64; 3]; g.verts.len()];
         for t in g.indices.chunks_exact(3) {
             let p = [t[0], t[2], t[1]].map(|i| prim.positions[start + i as usize].map(|x| x as f64));
@@ -547,6 +551,7 @@ fn append_surface(prim: &mut scene::Primitive, g: &SurfaceGeometry, scale: f64, 
             }
         }
     }
+    repaired
 }
 
 fn entity_extras(e: &Entity) -> Value {

@@ -5,9 +5,9 @@
 //! archives overriding earlier ones, and loose files overriding every archive of their
 //! directory. Lookups are case-insensitive on normalised paths (`/` separators).
 //!
-//! Untrusted names: an archive entry or loose file whose path is absolute, has a drive
-//! letter, a `..` or `.` component, a NUL byte or an empty component is never mounted
-//! (it is counted in [`Vfs::rejected`]). No name from an archive ever reaches the real
+//! Untrusted names: an archive with an entry whose path is absolute, has a drive letter,
+//! a `..` component or a NUL byte is refused as a whole ([`is_hostile`]); other odd
+//! names (empty or `.` components) are not mounted and are listed in [`Vfs::rejected`]. No name from an archive ever reaches the real
 //! file system: reads go through the archive, and output names are made by the writer.
 //!
 //! Entry sizes are bounded: a read that would exceed [`Vfs::max_entry_bytes`] fails
@@ -128,6 +128,13 @@ pub fn normalize(name: &str) -> Option<String> {
     Some(s.to_string())
 }
 
+/// Names that only a hostile archive contains: absolute paths, drive letters, `..`
+/// components, NUL bytes. An archive with such an entry is refused as a whole.
+pub fn is_hostile(name: &str) -> bool {
+    let s = name.replace('\\', "/");
+    s.contains('\0') || s.starts_with('/') || s.as_bytes().get(1) == Some(&b':') || s.split('/').any(|c| c == "..")
+}
+
 impl Vfs {
     pub fn new() -> Self {
         Vfs { archives: Vec::new(), files: BTreeMap::new(), rejected: Vec::new(), max_entry_bytes: DEFAULT_MAX_ENTRY_BYTES }
@@ -195,6 +202,9 @@ impl Vfs {
                 continue;
             }
             let raw = String::from_utf8_lossy(f.name_raw()).into_owned();
+            if is_hostile(&raw) {
+                return Err(VfsError::Archive { path: shown, msg: format!("unsafe entry name {:?} (absolute, drive letter, '..' or NUL)", raw) });
+            }
             match normalize(&raw) {
                 Some(n) => {
                     self.files.insert(n, Source::Packed { archive, index, size: f.size() });

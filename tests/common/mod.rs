@@ -1,0 +1,55 @@
+//! Shared helpers for the integration tests: the OpenArena data (fetched and cached by
+//! `samples/fetch-openarena.sh`) and the maps of one pk3.
+#![allow(dead_code)]
+
+use q3gltf_convert::bsp::Bsp;
+use q3gltf_convert::pipeline::LoadedMap;
+use q3gltf_convert::vfs::Vfs;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The `baseoa` game directory, fetched on first use (the script caches it).
+pub fn baseoa() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let out = std::process::Command::new("bash")
+            .arg(repo().join("samples/fetch-openarena.sh"))
+            .output()
+            .expect("run samples/fetch-openarena.sh");
+        assert!(out.status.success(), "fetching OpenArena data failed: {}", String::from_utf8_lossy(&out.stderr));
+        let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim().to_string());
+        assert!(dir.join("pak1-maps.pk3").is_file(), "no pak1-maps.pk3 in {}", dir.display());
+        dir
+    })
+}
+
+/// Names (`maps/x.bsp`) of the maps inside one pk3 of baseoa.
+pub fn maps_in(pk3: &str) -> Vec<String> {
+    let mut vfs = Vfs::new();
+    vfs.mount_pk3(&baseoa().join(pk3)).unwrap();
+    vfs.list("maps", "bsp")
+}
+
+/// A map from a specific pk3 (not the overriding newer version), with the whole of
+/// baseoa mounted for textures and shaders.
+pub fn load_from(pk3: &str, map: &str) -> LoadedMap {
+    let mut only = Vfs::new();
+    only.mount_pk3(&baseoa().join(pk3)).unwrap();
+    let bytes = only.read(map).unwrap();
+    let bsp = Bsp::parse(&bytes).unwrap_or_else(|e| panic!("{pk3}:{map}: {e}"));
+    let mut vfs = Vfs::new();
+    vfs.mount_dir(baseoa()).unwrap();
+    let name = Path::new(map).file_stem().unwrap().to_string_lossy().into_owned();
+    LoadedMap { vfs, bsp, name, shown: format!("{pk3}:{map}"), path: None }
+}
+
+/// Every map of pak1-maps.pk3 and pak6-patch088.pk3, as (pk3, map name).
+pub fn all_test_maps() -> Vec<(&'static str, String)> {
+    let mut v: Vec<(&'static str, String)> = maps_in("pak1-maps.pk3").into_iter().map(|m| ("pak1-maps.pk3", m)).collect();
+    v.extend(maps_in("pak6-patch088.pk3").into_iter().map(|m| ("pak6-patch088.pk3", m)));
+    v
+}
