@@ -28,6 +28,15 @@ enum Command {
     Convert(ConvertArgs),
     /// Print what a BSP file contains (format, lump counts), as text or JSON.
     Info(InfoArgs),
+    /// List the maps (`maps/*.bsp`) of the game directories, one name per line.
+    Maps(MapsArgs),
+}
+
+#[derive(Args)]
+struct MapsArgs {
+    /// Game directory with .pk3 archives and loose files (repeatable).
+    #[arg(long = "game-dir", value_name = "DIR", required = true)]
+    game_dirs: Vec<PathBuf>,
 }
 
 #[derive(Args)]
@@ -103,6 +112,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Convert(a) => run_convert(a),
         Command::Info(a) => run_info(a),
+        Command::Maps(a) => run_maps(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -171,6 +181,20 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
     }
     let times: Vec<String> = s.timings.iter().map(|(k, v)| format!("{k} {:.0} ms", v * 1e3)).collect();
     println!("  time: {}", times.join(", "));
+    Ok(())
+}
+
+fn run_maps(a: MapsArgs) -> Result<(), q3gltf_convert::Error> {
+    let mut vfs = q3gltf_convert::vfs::Vfs::new();
+    for d in &a.game_dirs {
+        vfs.mount_dir(d)?;
+    }
+    for m in vfs.list("maps", "bsp") {
+        let name = m.trim_start_matches("maps/").trim_end_matches(".bsp");
+        if !name.contains('/') {
+            println!("{name}");
+        }
+    }
     Ok(())
 }
 

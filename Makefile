@@ -1,0 +1,85 @@
+# q3gltf: Quake III maps to glTF 2.0.
+#
+#   make                 build, convert the bundled sample to out/sample.gltf
+#   make MAP=oa_dm1      fetch OpenArena (cached) and convert that map to out/oa_dm1.gltf
+#   make maps            convert every map of the game data to out/maps/*.glb (use -j)
+#   make test            the whole test suite (Rust and Python/Node checkers)
+#   make bench           conversion speed table (out/bench/convert.md) and `make -j2 maps` time
+#   make sample          regenerate the bundled sample from samples/src (committed)
+#
+# Variables: MAP, GAME_DIR (defaults to the fetched OpenArena baseoa), CONVERT_FLAGS.
+
+CARGO      ?= cargo
+BIN        := target/release/q3gltf
+OUT        := out
+VENV       := .venv
+PYTHON     ?= python3
+CONVERT_FLAGS ?= --entity-lights
+FETCH      := samples/fetch-openarena.sh
+SAMPLE_BSP := samples/sample/maps/sample.bsp
+
+.PHONY: all build sample test test-rust test-python python-deps node-deps maps bench clean data
+.DELETE_ON_ERROR:
+
+ifeq ($(MAP),)
+all: $(OUT)/sample.gltf
+else
+all: build
+	@mkdir -p $(OUT)
+	$(BIN) convert $(MAP) --game-dir "$$(if [ -n '$(GAME_DIR)' ]; then echo '$(GAME_DIR)'; else bash $(FETCH); fi)" $(CONVERT_FLAGS) -o $(OUT)/$(notdir $(MAP:.bsp=)).gltf
+endif
+
+build:
+	$(CARGO) build --release --workspace
+
+$(OUT)/sample.gltf: build
+	@mkdir -p $(OUT)
+	$(BIN) convert $(SAMPLE_BSP) $(CONVERT_FLAGS) -o $@
+
+sample:
+	$(CARGO) run --release -p q3gltf-samples --bin make-sample -- samples/sample
+
+data:
+	@bash $(FETCH)
+
+# Every map of the game data, one target each so that `make -j` runs them in parallel.
+maps: build
+	@dir="$${GAME_DIR:-$$(bash $(FETCH))}"; \
+	$(MAKE) --no-print-directory GAME_DIR="$$dir" $$($(BIN) maps --game-dir "$$dir" | sed 's|.*|$(OUT)/maps/&.glb|')
+
+$(OUT)/maps/%.glb:
+	@mkdir -p $(OUT)/maps
+	@$(BIN) convert $* --game-dir "$(GAME_DIR)" -q -o $@ > $(OUT)/maps/$*.log 2>&1 || { cat $(OUT)/maps/$*.log; exit 1; }
+	@echo "converted $*"
+
+$(VENV)/.stamp: tests/python/requirements.txt
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -q -r tests/python/requirements.txt
+	@touch $@
+
+tests/node/node_modules/.stamp: tests/node/package.json tests/node/package-lock.json
+	cd tests/node && npm ci --silent --no-audit --no-fund
+	@touch $@
+
+python-deps: $(VENV)/.stamp
+node-deps: tests/node/node_modules/.stamp
+
+test: test-rust test-python
+
+test-rust: build data
+	$(CARGO) test --release --workspace
+
+test-python: build data python-deps node-deps
+	Q3GLTF_BIN=$(BIN) $(VENV)/bin/python -m pytest tests/python -q -p no:cacheprovider
+
+bench: build data
+	$(CARGO) bench --bench convert
+	@rm -rf $(OUT)/maps
+	@start=$$(date +%s.%N); $(MAKE) --no-print-directory -j2 maps > /dev/null; end=$$(date +%s.%N); \
+	n=$$(ls $(OUT)/maps/*.glb | wc -l); \
+	line="make -j2 maps: $$n maps in $$(awk "BEGIN{printf \"%.1f\", $$end - $$start}") s (2 jobs, includes start-up of each process)"; \
+	echo "$$line"; echo "$$line" >> $(OUT)/bench/convert.md
+
+clean:
+	rm -rf $(OUT)
+	$(CARGO) clean
