@@ -264,10 +264,7 @@ fn atlas_texel_at_texcoord1_is_the_bsp_texel() {
         let pids: Vec<usize> = drawn_surfaces(bsp, &infos).into_iter().filter(|&i| bsp.surfaces[i].kind == SurfaceType::Patch).collect();
         let inputs: Vec<PatchInput> = pids
             .iter()
-            .map(|&i| {
-                let s = &bsp.surfaces[i];
-                PatchInput { width: s.patch_w as usize, height: s.patch_h as usize, ctrl: bsp.surface_verts(s) }
-            })
+            .map(|&i| PatchInput::of(bsp, &bsp.surfaces[i]))
             .collect();
         let on_patch: std::collections::HashSet<[u32; 3]> = patch::tessellate_all(&inputs, opts.patch_tolerance, usize::MAX)
             .unwrap()
@@ -355,10 +352,7 @@ fn lightmapped_area_is_preserved() {
         let all_patches: Vec<usize> = drawn.iter().copied().filter(|&i| bsp.surfaces[i].kind == SurfaceType::Patch).collect();
         let inputs: Vec<PatchInput> = all_patches
             .iter()
-            .map(|&i| {
-                let s = &bsp.surfaces[i];
-                PatchInput { width: s.patch_w as usize, height: s.patch_h as usize, ctrl: bsp.surface_verts(s) }
-            })
+            .map(|&i| PatchInput::of(bsp, &bsp.surfaces[i]))
             .collect();
         let tess = patch::tessellate_all(&inputs, opts.patch_tolerance, usize::MAX).unwrap();
         for (i, t) in all_patches.iter().zip(&tess) {
@@ -396,10 +390,7 @@ fn patches_are_crack_free_and_within_tolerance() {
         }
         let inputs: Vec<PatchInput> = ids
             .iter()
-            .map(|&i| {
-                let s = &bsp.surfaces[i];
-                PatchInput { width: s.patch_w as usize, height: s.patch_h as usize, ctrl: bsp.surface_verts(s) }
-            })
+            .map(|&i| PatchInput::of(bsp, &bsp.surfaces[i]))
             .collect();
         let tess = patch::tessellate_all(&inputs, tolerance, usize::MAX).unwrap();
 

@@ -189,6 +189,30 @@ pub struct Surface {
     pub patch_h: u32,
 }
 
+impl Surface {
+    /// A surface of the given shader and type with empty ranges and no lightmap.
+    pub fn new(shader: u32, kind: SurfaceType) -> Self {
+        Surface {
+            shader,
+            fog: -1,
+            kind,
+            first_vert: 0,
+            num_verts: 0,
+            first_index: 0,
+            num_indexes: 0,
+            lightmap: -1,
+            lightmap_x: 0,
+            lightmap_y: 0,
+            lightmap_w: 0,
+            lightmap_h: 0,
+            lightmap_origin: [0.0; 3],
+            lightmap_vecs: [[0.0; 3]; 3],
+            patch_w: 0,
+            patch_h: 0,
+        }
+    }
+}
+
 /// Number of records in the lumps that the converter does not model, for `info`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct OtherCounts {
@@ -619,22 +643,12 @@ mod tests {
             verts: vec![v(0.0, 0.0), v(0.0, 1.0), v(1.0, 1.0)],
             indices: vec![0, 1, 2],
             surfaces: vec![Surface {
-                shader: 0,
-                fog: -1,
-                kind: SurfaceType::Polygon,
-                first_vert: 0,
                 num_verts: 3,
-                first_index: 0,
                 num_indexes: 3,
                 lightmap: 0,
-                lightmap_x: 0,
-                lightmap_y: 0,
                 lightmap_w: 2,
                 lightmap_h: 2,
-                lightmap_origin: [0.0; 3],
-                lightmap_vecs: [[0.0; 3]; 3],
-                patch_w: 0,
-                patch_h: 0,
+                ..Surface::new(0, SurfaceType::Polygon)
             }],
             lightmaps: vec![vec![7u8; LIGHTMAP_BYTES]],
             other: OtherCounts::default(),

@@ -46,6 +46,13 @@ pub struct PatchInput<'a> {
     pub ctrl: &'a [DrawVert],
 }
 
+impl<'a> PatchInput<'a> {
+    /// The control grid of a BSP patch surface (sizes and ranges checked by `Bsp::parse`).
+    pub fn of(bsp: &'a crate::bsp::Bsp, s: &crate::bsp::Surface) -> Self {
+        PatchInput { width: s.patch_w as usize, height: s.patch_h as usize, ctrl: bsp.surface_verts(s) }
+    }
+}
+
 /// Output: the tessellated grid of one patch surface.
 #[derive(Debug, Clone)]
 pub struct Tessellated {

@@ -302,10 +302,7 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     let patch_ids: Vec<usize> = (0..bsp.surfaces.len()).filter(|&i| bsp.surfaces[i].kind == SurfaceType::Patch && drawable(i)).collect();
     let inputs: Vec<PatchInput> = patch_ids
         .iter()
-        .map(|&i| {
-            let s = &bsp.surfaces[i];
-            PatchInput { width: s.patch_w as usize, height: s.patch_h as usize, ctrl: bsp.surface_verts(s) }
-        })
+        .map(|&i| PatchInput::of(bsp, &bsp.surfaces[i]))
         .collect();
     let tess = patch::tessellate_all(&inputs, opts.patch_tolerance, opts.max_patch_vertices)
         .map_err(|e| Error::invalid(&map.shown, e.to_string()))?;

@@ -182,6 +182,15 @@ struct Pages {
 }
 
 impl Pages {
+    /// Copies a `w`-wide block of texels to (px, py) of a page.
+    fn blit(&mut self, page: usize, px: usize, py: usize, w: usize, texels: &[[u8; 3]]) {
+        for (k, t) in texels.iter().enumerate() {
+            let (i, j) = (k % w, k / w);
+            let o = ((py + j) * LIGHTMAP_SIZE + px + i) * 3;
+            self.pages[page][o..o + 3].copy_from_slice(t);
+        }
+    }
+
     fn alloc(&mut self, w: usize, h: usize) -> (usize, usize, usize) {
         assert!(w < LIGHTMAP_SIZE && h < LIGHTMAP_SIZE);
         if self.pages.is_empty() || self.x + w > LIGHTMAP_SIZE {
@@ -327,29 +336,11 @@ pub fn generate() -> Sample {
     let mut verts: Vec<DrawVert> = Vec::new();
     let mut indices: Vec<u32> = Vec::new();
     let mut surfaces: Vec<Surface> = Vec::new();
-    let blank_surface = |shader: u32, kind: SurfaceType| Surface {
-        shader,
-        fog: -1,
-        kind,
-        first_vert: 0,
-        num_verts: 0,
-        first_index: 0,
-        num_indexes: 0,
-        lightmap: -1,
-        lightmap_x: 0,
-        lightmap_y: 0,
-        lightmap_w: 0,
-        lightmap_h: 0,
-        lightmap_origin: [0.0; 3],
-        lightmap_vecs: [[0.0; 3]; 3],
-        patch_w: 0,
-        patch_h: 0,
-    };
 
     for q in &quads {
         let n = q.u.cross(q.v).normalize();
         let (w, h) = ((q.u.length() / LUXEL).round() as usize, (q.v.length() / LUXEL).round() as usize);
-        let mut s = blank_surface(q.shader, SurfaceType::Polygon);
+        let mut s = Surface::new(q.shader, SurfaceType::Polygon);
         s.first_vert = verts.len() as u32;
         s.num_verts = 4;
         s.first_index = indices.len() as u32;
@@ -386,11 +377,7 @@ pub fn generate() -> Sample {
                     clamp_bytes(irradiance_bytes(p, n, &LIGHTS, Some(&blocked)))
                 })
                 .collect();
-            for (k, t) in texels.iter().enumerate() {
-                let (i, j) = (k % w, k / w);
-                let o = ((py + j) * LIGHTMAP_SIZE + px + i) * 3;
-                pages.pages[page][o..o + 3].copy_from_slice(t);
-            }
+            pages.blit(page, px, py, w, &texels);
         }
         surfaces.push(s);
     }
@@ -399,7 +386,7 @@ pub fn generate() -> Sample {
     {
         let (w, h) = (16usize, 8usize);
         let (page, px, py) = pages.alloc(w, h);
-        let mut s = blank_surface(3, SurfaceType::Patch);
+        let mut s = Surface::new(3, SurfaceType::Patch);
         s.first_vert = verts.len() as u32;
         s.num_verts = 15;
         s.patch_w = 5;
@@ -436,11 +423,7 @@ pub fn generate() -> Sample {
                 clamp_bytes(irradiance_bytes(p, normal_at(u, v), &LIGHTS, Some(&blocked)))
             })
             .collect();
-        for (k, t) in texels.iter().enumerate() {
-            let (i, j) = (k % w, k / w);
-            let o = ((py + j) * LIGHTMAP_SIZE + px + i) * 3;
-            pages.pages[page][o..o + 3].copy_from_slice(t);
-        }
+        pages.blit(page, px, py, w, &texels);
         surfaces.push(s);
     }
 
