@@ -251,3 +251,41 @@ fn other_formats_convert() {
         assert!(tris > 90, "{name}: {tris} triangles");
     }
 }
+
+/// External lightmaps (`maps/<map>/lm_0000.tga`, empty lump) are found through the VFS
+/// and packed unchanged; `--moz-lightmap` adds the extension to extensionsUsed only.
+#[test]
+fn external_lightmaps_and_moz_lightmap() {
+    let d = tmp("external");
+    let game = d.join("game");
+    std::fs::create_dir_all(game.join("maps/ext")).unwrap();
+    let mut bsp = q3gltf_samples::generate().bsp;
+    let page = bsp.lightmaps.remove(0);
+    assert!(bsp.lightmaps.is_empty());
+    let img = image::RgbImage::from_raw(128, 128, page.clone()).unwrap();
+    img.save_with_format(game.join("maps/ext/lm_0000.tga"), image::ImageFormat::Tga).unwrap();
+    std::fs::write(game.join("maps/ext.bsp"), bsp.to_bytes()).unwrap();
+    let out = d.join("ext.gltf");
+    let o = Command::new(exe()).arg("convert").arg(game.join("maps/ext.bsp")).args(["--moz-lightmap", "--json", "-o"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(summary["lightmap_pages"], 1, "{summary}");
+    assert_eq!(summary["surfaces"]["lightmapped"], 33, "{summary}");
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert!(doc["extensionsUsed"].as_array().unwrap().iter().any(|e| e == "MOZ_lightmap"));
+    assert!(doc.get("extensionsRequired").is_none_or(|r| !r.as_array().unwrap().iter().any(|e| e == "MOZ_lightmap")));
+    let mat = doc["materials"].as_array().unwrap().iter().find(|m| m.get("occlusionTexture").is_some()).unwrap();
+    assert_eq!(mat["extensions"]["MOZ_lightmap"]["texCoord"], 1);
+    // The atlas holds the page unchanged, one texel in from its cell's corner.
+    let (gdoc, _, images) = gltf::import(&out).unwrap();
+    let tex = gdoc.materials().find_map(|m| m.occlusion_texture()).unwrap().texture().source().index();
+    let atlas = &images[tex];
+    assert_eq!(atlas.format, gltf::image::Format::R8G8B8);
+    for y in 0..128 {
+        for x in 0..128 {
+            let a = ((y + 1) * atlas.width as usize + x + 1) * 3;
+            let p = (y * 128 + x) * 3;
+            assert_eq!(&atlas.pixels[a..a + 3], &page[p..p + 3], "texel ({x}, {y})");
+        }
+    }
+}

@@ -57,7 +57,7 @@ pub fn gather(bsp: &Bsp, vfs: &Vfs, map_name: &str, limits: Limits) -> Pages {
             .map(|i| {
                 let name = format!("maps/{map_name}/lm_{i:04}.tga");
                 match vfs.read(&name) {
-                    Ok(bytes) => match crate::texture::decode_rgba(&bytes, limits) {
+                    Ok(bytes) => match crate::texture::decode_rgba(&bytes, "tga", limits) {
                         Ok(img) => {
                             let (w, h) = (img.width() as usize, img.height() as usize);
                             let rgb = img.pixels().flat_map(|p| [p.0[0], p.0[1], p.0[2]]).collect();

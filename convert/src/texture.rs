@@ -111,9 +111,15 @@ pub fn placeholder() -> Encoded {
     Encoded { mime: "image/png", bytes: png_bytes(&px, 8, 8, image::ExtendedColorType::Rgb8).unwrap_or_default(), width: 8, height: 8 }
 }
 
-/// Decodes any supported image to RGBA8 (used by tests and by readers of our output).
-pub fn decode_rgba(bytes: &[u8], limits: Limits) -> Result<image::RgbaImage, TextureError> {
-    let r = reader(bytes, limits)?.with_guessed_format().map_err(|e| TextureError::Decode(e.to_string()))?;
+/// Decodes an image to RGBA8. `ext` (the file's extension) names the format when the
+/// content has no magic bytes (TGA); content with magic bytes wins.
+pub fn decode_rgba(bytes: &[u8], ext: &str, limits: Limits) -> Result<image::RgbaImage, TextureError> {
+    let mut r = reader(bytes, limits)?.with_guessed_format().map_err(|e| TextureError::Decode(e.to_string()))?;
+    if r.format().is_none() {
+        if let Some(f) = image::ImageFormat::from_extension(ext) {
+            r.set_format(f);
+        }
+    }
     let img = r.decode().map_err(|e| TextureError::Decode(e.to_string()))?;
     Ok(img.to_rgba8())
 }
@@ -129,7 +135,7 @@ mod tests {
         img.write_to(&mut Cursor::new(&mut tga), image::ImageFormat::Tga).unwrap();
         let e = encode_for_gltf(&tga, "tga", Limits::default()).unwrap();
         assert_eq!(e.mime, "image/png");
-        let back = decode_rgba(&e.bytes, Limits::default()).unwrap();
+        let back = decode_rgba(&e.bytes, "png", Limits::default()).unwrap();
         assert_eq!(back.get_pixel(2, 1).0, [160, 100, 7, 255]);
         let again = encode_for_gltf(&e.bytes, "png", Limits::default()).unwrap();
         assert_eq!(again.bytes, e.bytes);
