@@ -237,6 +237,10 @@ struct SurfaceGeometry<'a> {
 pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> Result<(Scene, Summary), Error> {
     let bsp = &map.bsp;
     let mut summary = Summary { map: map.shown.clone(), format: bsp.format.to_string(), ..Default::default() };
+    if !map.vfs.rejected.is_empty() {
+        let shown: Vec<&str> = map.vfs.rejected.iter().take(5).map(String::as_str).collect();
+        summary.warnings.push(format!("{} file(s) with unusable names ignored: {}", map.vfs.rejected.len(), shown.join(", ")));
+    }
     let mut t = Instant::now();
     let mut lap = |summary: &mut Summary, name: &str| {
         summary.timings.push((name.to_string(), t.elapsed().as_secs_f64()));
