@@ -96,11 +96,10 @@ struct InfoArgs {
     json: bool,
 }
 
+/// An existing file is a map path; anything else is a map name for the game directories.
 fn source_of(map: &str) -> MapSource {
     let p = PathBuf::from(map);
-    if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("bsp")) && p.is_file() {
-        MapSource::Path(p)
-    } else if p.is_file() {
+    if p.is_file() {
         MapSource::Path(p)
     } else {
         MapSource::Name(map.to_string())

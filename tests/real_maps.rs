@@ -7,8 +7,7 @@ use q3gltf_convert::bsp::{Bsp, SurfaceType};
 use q3gltf_convert::gltf_out;
 use q3gltf_convert::material::{self, Visibility};
 use q3gltf_convert::patch::{self, PatchInput};
-use q3gltf_convert::pipeline::{build_scene, LoadedMap, Options};
-use q3gltf_convert::shader::ShaderLibrary;
+use q3gltf_convert::pipeline::{build_scene, resolve_shaders, LoadedMap, Options};
 use q3gltf_convert::units;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -71,11 +70,9 @@ fn read_glb(glb: &[u8]) -> (gltf::Gltf, Vec<OutTri>) {
 }
 
 fn shader_infos(map: &LoadedMap) -> Vec<material::ShaderInfo> {
-    let mut lib = ShaderLibrary::default();
-    for s in map.vfs.list("scripts", "shader") {
-        lib.add_script(&s, &String::from_utf8_lossy(&map.vfs.read(&s).unwrap()));
-    }
-    map.bsp.shaders.iter().map(|s| material::resolve(s, &lib, &map.vfs)).collect()
+    let (infos, unreadable) = resolve_shaders(map);
+    assert!(unreadable.is_empty(), "{}: {unreadable:?}", map.shown);
+    infos
 }
 
 /// Surfaces that belong to a model and whose shader is drawn (sky included).

@@ -13,7 +13,7 @@ use crate::scene::{AlphaMode, LightKind, Sampling, Scene};
 use gltf_json as json;
 use json::validation::Checked::Valid;
 use json::validation::USize64;
-use serde_json::{Map, Value};
+use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
@@ -340,12 +340,7 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
 }
 
 fn to_json_bytes(root: &json::Root) -> Vec<u8> {
-    // Through serde_json::Value to reorder nothing and keep output stable.
-    let v: Map<String, Value> = match serde_json::to_value(root) {
-        Ok(Value::Object(m)) => m,
-        _ => Map::new(),
-    };
-    serde_json::to_vec(&Value::Object(v)).unwrap_or_default()
+    serde_json::to_vec(root).unwrap_or_default()
 }
 
 /// Encodes a scene as GLB bytes (JSON and BIN chunks).

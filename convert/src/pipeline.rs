@@ -212,6 +212,25 @@ pub fn convert(source: &MapSource, out: &Path, opts: &Options, progress: &dyn Fn
     Ok(summary)
 }
 
+/// Reads every shader script of the VFS (in parallel; later files override earlier
+/// ones) and resolves each BSP shader record. Also returns the scripts that could not be
+/// read, as warnings.
+pub fn resolve_shaders(map: &LoadedMap) -> (Vec<ShaderInfo>, Vec<String>) {
+    let scripts = map.vfs.list("scripts", "shader");
+    let texts: Vec<(String, Result<Vec<u8>, String>)> =
+        scripts.par_iter().map(|s| (s.clone(), map.vfs.read(s).map_err(|e| e.to_string()))).collect();
+    let mut lib = ShaderLibrary::default();
+    let mut warnings = Vec::new();
+    for (name, text) in &texts {
+        match text {
+            Ok(bytes) => lib.add_script(name, &String::from_utf8_lossy(bytes)),
+            Err(e) => warnings.push(e.clone()),
+        }
+    }
+    let infos = map.bsp.shaders.iter().map(|s| material::resolve(s, &lib, &map.vfs)).collect();
+    (infos, warnings)
+}
+
 /// Lighting of a converted surface.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum Lighting {
@@ -249,17 +268,8 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
 
     // Shaders.
     progress("reading shader scripts");
-    let scripts = map.vfs.list("scripts", "shader");
-    let texts: Vec<(String, Result<Vec<u8>, String>)> =
-        scripts.par_iter().map(|s| (s.clone(), map.vfs.read(s).map_err(|e| e.to_string()))).collect();
-    let mut lib = ShaderLibrary::default();
-    for (name, text) in &texts {
-        match text {
-            Ok(bytes) => lib.add_script(name, &String::from_utf8_lossy(bytes)),
-            Err(e) => summary.warnings.push(e.clone()),
-        }
-    }
-    let infos: Vec<ShaderInfo> = bsp.shaders.iter().map(|s| material::resolve(s, &lib, &map.vfs)).collect();
+    let (infos, unreadable_scripts) = resolve_shaders(map);
+    summary.warnings.extend(unreadable_scripts);
     lap(&mut summary, "shaders");
 
     // Entities.
