@@ -1,7 +1,9 @@
 //! `q3gltf`: Quake III maps to glTF 2.0, with their baked lightmaps.
 //!
 //! The command line only parses arguments, shows progress and prints reports; the work
-//! is done by the library crates (`q3gltf-convert`).
+//! is done by the library crates (`q3gltf-convert`, `q3gltf-relight`).
+
+mod relight_cmd;
 
 use clap::{Args, Parser, Subcommand};
 use q3gltf_convert::{pipeline, MapSource, Options};
@@ -30,6 +32,14 @@ enum Command {
     Info(InfoArgs),
     /// List the maps (`maps/*.bsp`) of the game directories, one name per line.
     Maps(MapsArgs),
+    /// Estimate point lights whose direct lighting reproduces a converted scene's baked
+    /// lightmaps, and write the scene with them as KHR_lights_punctual lights.
+    ///
+    /// Target: per vertex, the mass-lumped L2 projection of albedo x lightmap (lightmap
+    /// bytes decoded as e = byte * 2^overbright / 255). Model: Lambertian albedo * E / pi
+    /// from point lights of intensity I [W/sr] with shadow rays; written as candela
+    /// (683 * I). Prints the error reached, the lights and the time of each stage.
+    Relight(relight_cmd::RelightArgs),
 }
 
 #[derive(Args)]
@@ -112,6 +122,13 @@ fn main() -> ExitCode {
         Command::Convert(a) => run_convert(a),
         Command::Info(a) => run_info(a),
         Command::Maps(a) => run_maps(a),
+        Command::Relight(a) => match relight_cmd::run(a) {
+            Ok(()) => return ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("q3gltf: error: {e}");
+                return ExitCode::from(1);
+            }
+        },
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,352 @@
+//! A bounding volume hierarchy over the scene's triangles, built once on the CPU (binned
+//! SAH) and flattened in depth-first order so the same arrays serve the CPU traversal here
+//! and the WGSL traversal in `shaders/common.wgsl`.
+//!
+//! Layout: an interior node's left child is the next node; `right_or_first` is its right
+//! child; a leaf (`count > 0`) holds triangles `right_or_first .. right_or_first + count`
+//! of [`Bvh::tris`], each stored as `(v0, e1 = v1 - v0, e2 = v2 - v0)` for Moeller-Trumbore.
+
+use glam::Vec3;
+
+use crate::scene::Mesh;
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Node {
+    pub min: [f32; 3],
+    pub right_or_first: u32,
+    pub max: [f32; 3],
+    pub count: u32,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Tri {
+    pub v0: [f32; 4],
+    pub e1: [f32; 4],
+    pub e2: [f32; 4],
+}
+
+pub struct Bvh {
+    pub nodes: Vec<Node>,
+    pub tris: Vec<Tri>,
+    /// Original triangle index of each entry of `tris`.
+    pub tri_index: Vec<u32>,
+}
+
+const LEAF_SIZE: usize = 4;
+const BINS: usize = 12;
+/// Stack depth of the traversals (CPU and WGSL); the build never goes deeper.
+pub const MAX_DEPTH: usize = 48;
+
+#[derive(Clone, Copy)]
+struct Aabb {
+    lo: Vec3,
+    hi: Vec3,
+}
+impl Aabb {
+    const EMPTY: Aabb = Aabb { lo: Vec3::splat(f32::INFINITY), hi: Vec3::splat(f32::NEG_INFINITY) };
+    fn grow(&mut self, p: Vec3) {
+        self.lo = self.lo.min(p);
+        self.hi = self.hi.max(p);
+    }
+    fn merge(&mut self, o: &Aabb) {
+        self.lo = self.lo.min(o.lo);
+        self.hi = self.hi.max(o.hi);
+    }
+    fn area(&self) -> f32 {
+        let d = (self.hi - self.lo).max(Vec3::ZERO);
+        d.x * d.y + d.y * d.z + d.z * d.x
+    }
+}
+
+impl Bvh {
+    /// Builds over every non-degenerate triangle of the mesh.
+    pub fn build(mesh: &Mesh) -> Bvh {
+        let mut items: Vec<(u32, Aabb, Vec3)> = Vec::with_capacity(mesh.triangles.len());
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|i| mesh.positions[i as usize]);
+            if (b - a).cross(c - a).length_squared() <= 0.0 {
+                continue;
+            }
+            let mut bb = Aabb::EMPTY;
+            bb.grow(a);
+            bb.grow(b);
+            bb.grow(c);
+            items.push((t as u32, bb, (a + b + c) / 3.0));
+        }
+        let mut nodes = Vec::with_capacity(2 * items.len() / LEAF_SIZE + 1);
+        let n = items.len();
+        build_rec(&mut items[..], 0, &mut nodes, 0);
+        if n == 0 {
+            nodes.clear();
+            nodes.push(Node { min: [0.0; 3], right_or_first: 0, max: [0.0; 3], count: 0 });
+        }
+        let mut tris = Vec::with_capacity(n);
+        let mut tri_index = Vec::with_capacity(n);
+        for (t, _, _) in &items {
+            let [a, b, c] = mesh.triangles[*t as usize].map(|i| mesh.positions[i as usize]);
+            tris.push(Tri { v0: a.extend(0.0).to_array(), e1: (b - a).extend(0.0).to_array(), e2: (c - a).extend(0.0).to_array() });
+            tri_index.push(*t);
+        }
+        Bvh { nodes, tris, tri_index }
+    }
+
+    /// True when the segment `o + s d`, `s` in `(0, t_max)`, hits a triangle.
+    pub fn occluded(&self, o: Vec3, d: Vec3, t_max: f32) -> bool {
+        if self.tris.is_empty() {
+            return false;
+        }
+        let inv = d.recip();
+        let mut stack = [0u32; MAX_DEPTH];
+        let mut sp = 1usize;
+        while sp > 0 {
+            sp -= 1;
+            let here = stack[sp];
+            let node = &self.nodes[here as usize];
+            if !slab(node, o, inv, t_max) {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                for tri in &self.tris[first..first + node.count as usize] {
+                    if let Some(t) = intersect(tri, o, d) {
+                        if t > 0.0 && t < t_max {
+                            return true;
+                        }
+                    }
+                }
+            } else if sp + 2 <= MAX_DEPTH {
+                stack[sp] = node.right_or_first;
+                stack[sp + 1] = here + 1;
+                sp += 2;
+            }
+        }
+        false
+    }
+
+    /// Nearest hit `(t, triangle index in the mesh)` along `o + s d`, `s` in `(0, t_max)`.
+    pub fn first_hit(&self, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, u32)> {
+        let inv = d.recip();
+        let mut best: Option<(f32, u32)> = None;
+        let mut limit = t_max;
+        let mut stack = vec![0u32];
+        while let Some(i) = stack.pop() {
+            if self.tris.is_empty() {
+                break;
+            }
+            let node = &self.nodes[i as usize];
+            if !slab(node, o, inv, limit) {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
+                    if let Some(t) = intersect(tri, o, d) {
+                        if t > 0.0 && t < limit {
+                            limit = t;
+                            best = Some((t, self.tri_index[first + k]));
+                        }
+                    }
+                }
+            } else {
+                stack.push(node.right_or_first);
+                stack.push(i + 1);
+            }
+        }
+        best
+    }
+
+    /// Distance from `p` to the nearest triangle and the nearest point (meters).
+    pub fn nearest(&self, p: Vec3) -> Option<(f32, Vec3)> {
+        let mut best: Option<(f32, Vec3)> = None;
+        let mut best_d2 = f32::INFINITY;
+        let mut stack = vec![0u32];
+        while let Some(i) = stack.pop() {
+            if self.tris.is_empty() {
+                break;
+            }
+            let node = &self.nodes[i as usize];
+            let q = p.clamp(Vec3::from(node.min), Vec3::from(node.max));
+            if (q - p).length_squared() >= best_d2 {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                for tri in &self.tris[first..first + node.count as usize] {
+                    let a = Vec3::from_slice(&tri.v0);
+                    let c = closest_on_triangle(p, a, a + Vec3::from_slice(&tri.e1), a + Vec3::from_slice(&tri.e2));
+                    let d2 = (c - p).length_squared();
+                    if d2 < best_d2 {
+                        best_d2 = d2;
+                        best = Some((d2.sqrt(), c));
+                    }
+                }
+            } else {
+                stack.push(node.right_or_first);
+                stack.push(i + 1);
+            }
+        }
+        best
+    }
+}
+
+fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
+    let t0 = (Vec3::from(node.min) - o) * inv;
+    let t1 = (Vec3::from(node.max) - o) * inv;
+    let near = t0.min(t1).max_element().max(0.0);
+    let far = t0.max(t1).min_element().min(t_max);
+    // NaN (0 * inf on a slab face) compares false: treated as a hit, which is conservative.
+    !(near > far)
+}
+
+/// Moeller-Trumbore, two-sided. Returns the ray parameter of the hit.
+pub fn intersect(tri: &Tri, o: Vec3, d: Vec3) -> Option<f32> {
+    let e1 = Vec3::from_slice(&tri.e1);
+    let e2 = Vec3::from_slice(&tri.e2);
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - Vec3::from_slice(&tri.v0);
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    Some(e2.dot(q) * inv)
+}
+
+/// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5).
+pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(ap);
+    let d2 = ac.dot(ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let d3 = ab.dot(bp);
+    let d4 = ac.dot(bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return a + ab * v;
+    }
+    let cp = p - c;
+    let d5 = ab.dot(cp);
+    let d6 = ac.dot(cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return a + ac * w;
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return b + (c - b) * w;
+    }
+    let denom = va + vb + vc;
+    if denom == 0.0 || !denom.is_finite() {
+        return a;
+    }
+    let v = vb / denom;
+    let w = vc / denom;
+    a + ab * v + ac * w
+}
+
+/// Recursive binned-SAH build; returns the node index. Items are reordered in place and a
+/// leaf's `first` is an offset into the whole item array (`base` is this slice's offset).
+fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>, depth: usize) -> u32 {
+    let mut bb = Aabb::EMPTY;
+    let mut cb = Aabb::EMPTY;
+    for (_, b, c) in items.iter() {
+        bb.merge(b);
+        cb.grow(*c);
+    }
+    let me = nodes.len();
+    nodes.push(Node { min: bb.lo.to_array(), right_or_first: base as u32, max: bb.hi.to_array(), count: items.len() as u32 });
+    // Deep enough that the stack of depth MAX_DEPTH always suffices (one slot per level + 1).
+    if items.len() <= LEAF_SIZE || depth + 2 >= MAX_DEPTH {
+        return me as u32;
+    }
+    let ext = cb.hi - cb.lo;
+    let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+    let (lo, span) = (cb.lo[axis], ext[axis]);
+    let mut mid;
+    if span > 0.0 && span.is_finite() {
+        let bin_of = |c: Vec3| (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
+        let mut bins = [(Aabb::EMPTY, 0usize); BINS];
+        for (_, b, c) in items.iter() {
+            let k = bin_of(*c);
+            bins[k].0.merge(b);
+            bins[k].1 += 1;
+        }
+        let mut best = (f32::INFINITY, 0usize);
+        for split in 1..BINS {
+            let (mut l, mut r) = (Aabb::EMPTY, Aabb::EMPTY);
+            let (mut nl, mut nr) = (0, 0);
+            for (k, (b, n)) in bins.iter().enumerate() {
+                if *n == 0 {
+                    continue;
+                }
+                if k < split {
+                    l.merge(b);
+                    nl += n;
+                } else {
+                    r.merge(b);
+                    nr += n;
+                }
+            }
+            if nl == 0 || nr == 0 {
+                continue;
+            }
+            let cost = l.area() * nl as f32 + r.area() * nr as f32;
+            if cost < best.0 {
+                best = (cost, split);
+            }
+        }
+        if best.0.is_finite() {
+            let split = best.1;
+            mid = partition(items, |it| bin_of(it.2) < split);
+        } else {
+            mid = items.len() / 2;
+        }
+    } else {
+        mid = items.len() / 2;
+    }
+    if mid == 0 || mid == items.len() {
+        mid = items.len() / 2;
+    }
+    let (left, right) = items.split_at_mut(mid);
+    build_rec(left, base, nodes, depth + 1);
+    let r = build_rec(right, base + mid, nodes, depth + 1);
+    nodes[me].right_or_first = r;
+    nodes[me].count = 0;
+    me as u32
+}
+
+fn partition<T>(items: &mut [T], pred: impl Fn(&T) -> bool) -> usize {
+    let mut i = 0;
+    for j in 0..items.len() {
+        if pred(&items[j]) {
+            items.swap(i, j);
+            i += 1;
+        }
+    }
+    i
+}

@@ -1,0 +1,519 @@
+//! The optimisation state: lights, their parameterisation, penalties, phases, the exact
+//! intensity fit, and the pruning and merging of lights.
+//!
+//! Parameters per light (7): position `q` in units of `unit` meters around the scene
+//! centre, log intensity `s`, log colour `g_c`; `I_c = exp(s + g_c)` is positive by
+//! construction. An optional ambient term adds 3 parameters `a_c = exp(alpha_c)`.
+//! Penalties (scaled to the objective of an unlit scene `F0`): a light closer than
+//! `min_dist` to a surface pays `F0 (1 - dist/min_dist)^2`; a light outside the scene's box
+//! pays `F0 (outside/unit)^2` per axis.
+
+use std::time::Instant;
+
+use glam::Vec3;
+
+use crate::backend::Backend;
+use crate::bvh::Bvh;
+use crate::model::{Eval, Light, Problem};
+use crate::optim::{self, Stop};
+use crate::visibility::Visibility;
+
+const PER_LIGHT: usize = 7;
+
+/// Which light parameters a phase changes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ParamSet {
+    pub position: bool,
+    pub intensity: bool,
+    pub color: bool,
+}
+
+impl ParamSet {
+    pub const ALL: ParamSet = ParamSet { position: true, intensity: true, color: true };
+    pub const POSITION: ParamSet = ParamSet { position: true, intensity: false, color: false };
+    pub const INTENSITY_COLOR: ParamSet = ParamSet { position: false, intensity: true, color: true };
+    pub fn label(&self) -> String {
+        let mut v = Vec::new();
+        if self.position {
+            v.push("position");
+        }
+        if self.intensity {
+            v.push("intensity");
+        }
+        if self.color {
+            v.push("color");
+        }
+        v.join("+")
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "algorithm", rename_all = "lowercase")]
+pub enum Algorithm {
+    Adam { step: f64 },
+    Lbfgs { step: f64 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Phase {
+    #[serde(flatten)]
+    pub algorithm: Algorithm,
+    pub params: ParamSet,
+    pub max_iterations: usize,
+}
+
+/// One objective evaluation that ended an iteration.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct IterRecord {
+    /// Seconds since the optimisation started.
+    pub time_s: f64,
+    pub phase: usize,
+    pub iteration: usize,
+    pub objective: f64,
+    pub rel_error: f64,
+    pub lights: usize,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PhaseSummary {
+    pub name: String,
+    #[serde(flatten)]
+    pub phase: Phase,
+    pub iterations: usize,
+    pub evaluations: usize,
+    pub stop: Stop,
+    pub time_s: f64,
+    pub rel_error_before: f64,
+    pub rel_error_after: f64,
+}
+
+pub struct Fitter<'a> {
+    pub pb: &'a Problem,
+    pub bvh: &'a Bvh,
+    pub backend: &'a mut dyn Backend,
+    pub vis: Visibility,
+    pub lights: Vec<Light>,
+    pub locked: Vec<bool>,
+    pub ambient: Option<[f32; 3]>,
+    /// Position parameter unit, m.
+    pub unit: f32,
+    pub center: Vec3,
+    pub lo: Vec3,
+    pub hi: Vec3,
+    /// Lights keep at least this distance from surfaces, m.
+    pub min_dist: f32,
+    /// A light is re-traced when it moved more than this, m.
+    pub retrace_tol: f32,
+    pub history: Vec<IterRecord>,
+    pub phases: Vec<PhaseSummary>,
+    pub start: Instant,
+    pub deadline: Option<Instant>,
+    pub evaluations: usize,
+    pub phase_index: usize,
+    /// Called after every iteration (progress display).
+    pub on_iter: Option<Box<dyn FnMut(&IterRecord) + 'a>>,
+    /// The first backend error; once set, evaluations return NaN and every loop stops.
+    pub failure: Option<crate::error::Error>,
+}
+
+impl<'a> Fitter<'a> {
+    pub fn new(pb: &'a Problem, bvh: &'a Bvh, backend: &'a mut dyn Backend, lo: Vec3, hi: Vec3) -> Fitter<'a> {
+        let diag = (hi - lo).length().max(1e-3);
+        Fitter {
+            pb,
+            bvh,
+            backend,
+            vis: Visibility::default(),
+            lights: Vec::new(),
+            locked: Vec::new(),
+            ambient: None,
+            unit: 0.05 * diag,
+            center: (lo + hi) * 0.5,
+            lo,
+            hi,
+            min_dist: (0.002 * diag).max(0.05),
+            retrace_tol: (0.002 * diag).max(0.01),
+            history: Vec::new(),
+            phases: Vec::new(),
+            start: Instant::now(),
+            deadline: None,
+            evaluations: 0,
+            phase_index: 0,
+            on_iter: None,
+            failure: None,
+        }
+    }
+
+    /// True when the time limit passed or the backend failed: every loop stops.
+    pub fn out_of_time(&self) -> bool {
+        self.failure.is_some() || self.deadline.is_some_and(|d| Instant::now() >= d)
+    }
+
+    /// Objective without penalties, at the current lights (re-traces what moved).
+    pub fn eval(&mut self) -> Eval {
+        self.eval_lights(&self.lights.clone(), self.ambient)
+    }
+
+    pub fn eval_lights(&mut self, lights: &[Light], ambient: Option<[f32; 3]>) -> Eval {
+        let n = self.pb.len();
+        let failed = Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], grad_ambient: [0.0; 3] };
+        if self.failure.is_some() {
+            return failed;
+        }
+        let backend = &mut *self.backend;
+        let r = self.vis.update(lights, self.retrace_tol, n, &mut |p| backend.trace(p)).and_then(|_| {
+            self.evaluations += 1;
+            self.backend.evaluate(&self.vis, lights, ambient.unwrap_or([0.0; 3]))
+        });
+        match r {
+            Ok(ev) => ev,
+            Err(e) => {
+                self.failure = Some(e);
+                failed
+            }
+        }
+    }
+
+    /// Like `eval_lights` but with the visibility cache as it is (no re-trace).
+    pub fn eval_frozen(&mut self, lights: &[Light], ambient: Option<[f32; 3]>) -> Eval {
+        if self.failure.is_some() || self.vis.bits.len() != lights.len() {
+            return self.eval_lights(lights, ambient);
+        }
+        self.evaluations += 1;
+        match self.backend.evaluate(&self.vis, lights, ambient.unwrap_or([0.0; 3])) {
+            Ok(ev) => ev,
+            Err(e) => {
+                self.failure = Some(e);
+                Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], grad_ambient: [0.0; 3] }
+            }
+        }
+    }
+
+    fn encode(&self) -> Vec<f64> {
+        let mut x = Vec::with_capacity(self.lights.len() * PER_LIGHT + 3);
+        for l in &self.lights {
+            let q = (l.pos - self.center) / self.unit;
+            let m = l.rgb.iter().copied().fold(0.0f32, f32::max).max(1e-12);
+            x.extend([q.x as f64, q.y as f64, q.z as f64, (m as f64).ln()]);
+            for c in 0..3 {
+                x.push(((l.rgb[c] / m).max(1e-9) as f64).ln());
+            }
+        }
+        if let Some(a) = self.ambient {
+            x.extend(a.map(|v| (v.max(1e-12) as f64).ln()));
+        }
+        x
+    }
+
+    fn decode(&self, x: &[f64]) -> (Vec<Light>, Option<[f32; 3]>) {
+        let k = self.lights.len();
+        let lights = (0..k)
+            .map(|j| {
+                let p = &x[j * PER_LIGHT..(j + 1) * PER_LIGHT];
+                let pos = self.center + Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) * self.unit;
+                let rgb = [0, 1, 2].map(|c| (p[3] + p[4 + c]).clamp(-80.0, 80.0).exp() as f32);
+                Light { pos, rgb }
+            })
+            .collect();
+        let ambient = self.ambient.map(|_| [0, 1, 2].map(|c| x[k * PER_LIGHT + c].clamp(-80.0, 80.0).exp() as f32));
+        (lights, ambient)
+    }
+
+    /// Penalty value and its gradient with respect to each light position (per meter).
+    pub fn penalty(&self, lights: &[Light]) -> (f64, Vec<Vec3>) {
+        let f0 = 0.5 * self.pb.norm2.max(1e-30);
+        let mut total = 0.0;
+        let mut grads = vec![Vec3::ZERO; lights.len()];
+        for (j, l) in lights.iter().enumerate() {
+            if let Some((dist, near)) = self.bvh.nearest(l.pos) {
+                if dist < self.min_dist {
+                    let u = 1.0 - dist / self.min_dist;
+                    total += f0 * (u * u) as f64;
+                    let dir = (l.pos - near).try_normalize().unwrap_or(Vec3::ZERO);
+                    grads[j] += dir * (-2.0 * u / self.min_dist * f0 as f32);
+                }
+            }
+            for a in 0..3 {
+                let below = self.lo[a] - l.pos[a];
+                let above = l.pos[a] - self.hi[a];
+                if below > 0.0 {
+                    total += f0 * ((below / self.unit) as f64).powi(2);
+                    grads[j][a] -= 2.0 * below / (self.unit * self.unit) * f0 as f32;
+                }
+                if above > 0.0 {
+                    total += f0 * ((above / self.unit) as f64).powi(2);
+                    grads[j][a] += 2.0 * above / (self.unit * self.unit) * f0 as f32;
+                }
+            }
+        }
+        (total, grads)
+    }
+
+    fn mask(&self, set: ParamSet, with_ambient: bool) -> Vec<bool> {
+        let mut m = Vec::new();
+        for j in 0..self.lights.len() {
+            let free = !self.locked[j];
+            m.extend([set.position && free; 3]);
+            m.push(set.intensity && free);
+            m.extend([set.color && free; 3]);
+        }
+        if self.ambient.is_some() {
+            m.extend([with_ambient; 3]);
+        }
+        m
+    }
+
+    /// Runs one phase; returns its summary (also appended to `phases`).
+    pub fn run_phase(&mut self, name: &str, phase: Phase) -> PhaseSummary {
+        let t0 = Instant::now();
+        let before = self.eval().rel_error;
+        let x0 = self.encode();
+        let mask = self.mask(phase.params, phase.params.intensity);
+        let phase_no = self.phase_index;
+        self.phase_index += 1;
+        let last_err = std::cell::Cell::new(before);
+        let outcome = {
+            let this = std::cell::RefCell::new(&mut *self);
+            let mut objective = |x: &[f64], fresh: bool| -> (f64, Vec<f64>) {
+                let mut me = this.borrow_mut();
+                let (lights, ambient) = me.decode(x);
+                let ev = if fresh { me.eval_lights(&lights, ambient) } else { me.eval_frozen(&lights, ambient) };
+                let (pen, pgrad) = me.penalty(&lights);
+                last_err.set(ev.rel_error);
+                let mut g = vec![0.0; x.len()];
+                for (j, l) in lights.iter().enumerate() {
+                    let o = j * PER_LIGHT;
+                    let gp = [ev.grad[j][0] + pgrad[j].x as f64, ev.grad[j][1] + pgrad[j].y as f64, ev.grad[j][2] + pgrad[j].z as f64];
+                    for a in 0..3 {
+                        g[o + a] = gp[a] * me.unit as f64;
+                    }
+                    let mut gs = 0.0;
+                    for c in 0..3 {
+                        let d = ev.grad[j][3 + c] * l.rgb[c] as f64;
+                        gs += d;
+                        g[o + 4 + c] = d;
+                    }
+                    g[o + 3] = gs;
+                }
+                if let Some(a) = ambient {
+                    let o = lights.len() * PER_LIGHT;
+                    for c in 0..3 {
+                        g[o + c] = ev.grad_ambient[c] * a[c] as f64;
+                    }
+                }
+                (ev.f + pen, g)
+            };
+            let mut observe = |it: usize, f: f64| -> bool {
+                let mut me = this.borrow_mut();
+                let rec = IterRecord { time_s: me.start.elapsed().as_secs_f64(), phase: phase_no, iteration: it, objective: f, rel_error: last_err.get(), lights: me.lights.len() };
+                if let Some(cb) = me.on_iter.as_mut() {
+                    cb(&rec);
+                }
+                me.history.push(rec);
+                !me.out_of_time()
+            };
+            match phase.algorithm {
+                Algorithm::Adam { step } => optim::adam(&x0, &mask, step, phase.max_iterations, 1e-5, &mut objective, &mut observe),
+                Algorithm::Lbfgs { step } => optim::lbfgs(&x0, &mask, step, phase.max_iterations, 1e-6, &mut objective, &mut observe),
+            }
+        };
+        let (lights, ambient) = self.decode(&outcome.x);
+        self.lights = lights;
+        self.ambient = ambient;
+        let after = self.eval().rel_error;
+        let s = PhaseSummary {
+            name: name.to_string(),
+            phase,
+            iterations: outcome.iterations,
+            evaluations: outcome.evaluations,
+            stop: outcome.stop,
+            time_s: t0.elapsed().as_secs_f64(),
+            rel_error_before: before,
+            rel_error_after: after,
+        };
+        self.phases.push(s.clone());
+        s
+    }
+
+    /// Exact non-negative least-squares fit of every free light's intensity per channel (and
+    /// of the ambient term when enabled) for the current positions, on the CPU. Locked lights
+    /// keep their values. Returns the new relative error.
+    pub fn fit_intensities(&mut self) -> f64 {
+        let _ = self.eval(); // visibility up to date
+        let k = self.lights.len();
+        let amb = self.ambient.is_some();
+        let cols = k + amb as usize;
+        let pb = self.pb;
+        let lights = self.lights.clone();
+        let vis = &self.vis;
+        use rayon::prelude::*;
+        let chunk = 8192;
+        // Per channel: Gram matrix and right-hand side.
+        let (gram, rhs) = (0..pb.len().div_ceil(chunk))
+            .into_par_iter()
+            .map(|ci| {
+                let mut gram = vec![vec![0.0f64; cols * cols]; 3];
+                let mut rhs = vec![vec![0.0f64; cols]; 3];
+                let mut nz: Vec<(usize, f64)> = Vec::new();
+                for i in ci * chunk..((ci + 1) * chunk).min(pb.len()) {
+                    nz.clear();
+                    for (j, l) in lights.iter().enumerate() {
+                        if vis.visible(j, i) {
+                            let (g, _) = crate::model::geometry_term(pb.pos[i], pb.normal[i], l.pos, pb.eps);
+                            if g > 0.0 {
+                                nz.push((j, g as f64 / std::f64::consts::PI));
+                            }
+                        }
+                    }
+                    if amb {
+                        nz.push((k, 1.0));
+                    }
+                    for c in 0..3 {
+                        let w = pb.area[i] as f64 * pb.weight[i][c] as f64;
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let a = pb.albedo[i][c] as f64;
+                        for &(j, gj) in &nz {
+                            rhs[c][j] += w * a * gj * pb.target[i][c] as f64;
+                            for &(l, gl) in &nz {
+                                gram[c][j * cols + l] += w * a * a * gj * gl;
+                            }
+                        }
+                    }
+                }
+                (gram, rhs)
+            })
+            .reduce(
+                || (vec![vec![0.0; cols * cols]; 3], vec![vec![0.0; cols]; 3]),
+                |(mut g1, mut r1), (g2, r2)| {
+                    for c in 0..3 {
+                        for (a, b) in g1[c].iter_mut().zip(&g2[c]) {
+                            *a += b;
+                        }
+                        for (a, b) in r1[c].iter_mut().zip(&r2[c]) {
+                            *a += b;
+                        }
+                    }
+                    (g1, r1)
+                },
+            );
+        for c in 0..3 {
+            let mut x: Vec<f64> = (0..cols).map(|j| if j < k { self.lights[j].rgb[c] as f64 } else { self.ambient.map_or(0.0, |a| a[c] as f64) }).collect();
+            let free: Vec<bool> = (0..cols).map(|j| j >= k || !self.locked[j]).collect();
+            nnls_cd(&gram[c], &rhs[c], cols, &mut x, &free, 300);
+            for j in 0..k {
+                // Keep a light's channel just above zero so its log parameterisation stays finite.
+                self.lights[j].rgb[c] = (x[j] as f32).max(1e-6 * x.iter().copied().fold(1e-9, f64::max) as f32);
+            }
+            if let Some(a) = self.ambient.as_mut() {
+                a[c] = (x[k] as f32).max(1e-9);
+            }
+        }
+        self.eval().rel_error
+    }
+
+    /// Removes light `j` (keeps the visibility cache aligned).
+    pub fn remove_light(&mut self, j: usize) {
+        self.lights.remove(j);
+        self.locked.remove(j);
+        if j < self.vis.bits.len() {
+            self.vis.remove(j);
+        }
+    }
+
+    pub fn add_light(&mut self, l: Light, locked: bool) {
+        self.lights.push(l);
+        self.locked.push(locked);
+    }
+
+    /// Removes lights whose removal raises the relative error by less than `tol`
+    /// (absolute), one at a time, refitting intensities after each. Returns how many.
+    pub fn prune(&mut self, tol: f64) -> usize {
+        let mut removed = 0;
+        loop {
+            if self.out_of_time() || self.lights.len() <= 1 {
+                return removed;
+            }
+            let base = self.fit_intensities();
+            let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.ambient);
+            // Try the weakest lights first (least energy reaching the target).
+            let mut order: Vec<usize> = (0..self.lights.len()).filter(|&j| !self.locked[j]).collect();
+            order.sort_by(|&a, &b| self.lights[a].rgb.iter().sum::<f32>().total_cmp(&self.lights[b].rgb.iter().sum::<f32>()));
+            let mut done = false;
+            for &j in order.iter().take(4) {
+                self.remove_light(j);
+                let e = self.fit_intensities();
+                if e <= base + tol {
+                    removed += 1;
+                    done = true;
+                    break;
+                }
+                (self.lights, self.locked, self.vis, self.ambient) = saved.clone();
+            }
+            if !done {
+                (self.lights, self.locked, self.vis, self.ambient) = saved;
+                return removed;
+            }
+        }
+    }
+
+    /// Merges pairs of free lights closer than `dist` m when that raises the relative error
+    /// by less than `tol`. Returns how many merges were made.
+    pub fn merge(&mut self, dist: f32, tol: f64) -> usize {
+        let mut merged = 0;
+        'outer: loop {
+            if self.out_of_time() {
+                return merged;
+            }
+            let base = self.fit_intensities();
+            let k = self.lights.len();
+            for a in 0..k {
+                for b in a + 1..k {
+                    if self.locked[a] || self.locked[b] || (self.lights[a].pos - self.lights[b].pos).length() > dist {
+                        continue;
+                    }
+                    let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.ambient);
+                    let (la, lb) = (self.lights[a], self.lights[b]);
+                    let (wa, wb) = (la.rgb.iter().sum::<f32>(), lb.rgb.iter().sum::<f32>());
+                    let pos = (la.pos * wa + lb.pos * wb) / (wa + wb).max(1e-30);
+                    self.lights[a] = Light { pos, rgb: [0, 1, 2].map(|c| la.rgb[c] + lb.rgb[c]) };
+                    self.remove_light(b);
+                    let e = self.fit_intensities();
+                    if e <= base + tol {
+                        merged += 1;
+                        continue 'outer;
+                    }
+                    (self.lights, self.locked, self.vis, self.ambient) = saved;
+                }
+            }
+            return merged;
+        }
+    }
+}
+
+/// Projected coordinate descent for `min 1/2 x'Gx - r'x, x >= 0` (free entries only).
+pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], sweeps: usize) {
+    for _ in 0..sweeps {
+        let mut change = 0.0f64;
+        let mut scale = 0.0f64;
+        for j in 0..n {
+            if !free[j] || !(g[j * n + j] > 0.0) {
+                continue;
+            }
+            let mut s = r[j];
+            for l in 0..n {
+                if l != j {
+                    s -= g[j * n + l] * x[l];
+                }
+            }
+            let new = (s / g[j * n + j]).max(0.0);
+            change = change.max((new - x[j]).abs());
+            scale = scale.max(new.abs());
+            x[j] = new;
+        }
+        if change <= 1e-10 * scale.max(1e-300) {
+            break;
+        }
+    }
+}

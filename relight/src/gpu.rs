@@ -1,0 +1,336 @@
+//! The wgpu backend: the problem and the BVH are uploaded once; `trace` runs
+//! `shaders/trace.wgsl` for a batch of light positions and reads the bits back (they are
+//! small: one bit per vertex and light); `evaluate` uploads only the visibility of lights
+//! re-traced since the last call and runs `shaders/forward.wgsl`, whose per-workgroup
+//! partial sums are added on the CPU in f64. Pipelines are built in one place, [`Pipelines`].
+
+use glam::Vec3;
+use wgpu::util::DeviceExt;
+
+use crate::backend::Backend;
+use crate::bvh::Bvh;
+use crate::error::{Error, Result};
+use crate::model::{Eval, Light, Problem};
+use crate::visibility::Visibility;
+
+const WG: u32 = 64;
+const MAX_GROUPS: u32 = 65_535;
+
+/// What `probe` found.
+#[derive(Debug, Clone)]
+pub struct AdapterInfo {
+    pub name: String,
+    pub backend: String,
+    /// A CPU implementation (lavapipe, llvmpipe, WARP).
+    pub software: bool,
+}
+
+pub struct Context {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: AdapterInfo,
+}
+
+fn adapter() -> Result<wgpu::Adapter> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() }))
+        .map_err(|e| Error::Gpu(format!("no adapter: {e}")))
+}
+
+fn info_of(a: &wgpu::Adapter) -> AdapterInfo {
+    let i = a.get_info();
+    AdapterInfo { name: i.name.clone(), backend: format!("{:?}", i.backend), software: i.device_type == wgpu::DeviceType::Cpu }
+}
+
+impl Context {
+    /// The adapter wgpu would use, without creating a device.
+    pub fn probe() -> Result<AdapterInfo> {
+        Ok(info_of(&adapter()?))
+    }
+
+    pub fn new() -> Result<Context> {
+        let a = adapter()?;
+        let info = info_of(&a);
+        let limits = a.limits();
+        let (device, queue) = pollster::block_on(a.request_device(&wgpu::DeviceDescriptor {
+            label: Some("relight"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits,
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("request_device: {e}")))?;
+        Ok(Context { device, queue, info })
+    }
+}
+
+/// The layout of `Vertex` in `shaders/problem.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuVertex {
+    pos: [f32; 3],
+    area: f32,
+    normal: [f32; 3],
+    pad: f32,
+    albedo: [f32; 4],
+    target: [f32; 4],
+    weight: [f32; 4],
+    lower: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TraceParams {
+    n: u32,
+    lights: u32,
+    words: u32,
+    ray_offset: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ForwardParams {
+    n: u32,
+    k: u32,
+    words: u32,
+    stride: u32,
+    ambient: [f32; 4],
+    eps: f32,
+    pad: [f32; 3],
+}
+
+struct Pipelines {
+    trace: wgpu::ComputePipeline,
+    forward: wgpu::ComputePipeline,
+}
+
+impl Pipelines {
+    fn new(device: &wgpu::Device) -> Pipelines {
+        let problem = include_str!("../../shaders/problem.wgsl");
+        let bvh = include_str!("../../shaders/bvh.wgsl");
+        let make = |label: &str, src: String| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(src.into()) });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        Pipelines {
+            trace: make("trace", format!("{problem}\n{bvh}\n{}", include_str!("../../shaders/trace.wgsl"))),
+            forward: make("forward", format!("{problem}\n{}", include_str!("../../shaders/forward.wgsl"))),
+        }
+    }
+}
+
+pub struct GpuBackend {
+    ctx: Context,
+    pipes: Pipelines,
+    n: u32,
+    words: u32,
+    eps: f32,
+    ray_offset: f32,
+    norm2: f64,
+    verts: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    tris: wgpu::Buffer,
+    /// Visibility uploaded per light slot, and the light position it was traced at.
+    vis: Option<wgpu::Buffer>,
+    vis_capacity: usize,
+    uploaded: Vec<Option<Vec3>>,
+}
+
+fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+    // wgpu refuses zero-sized bindings: pad empty arrays to one element.
+    let pad = [0u8; 16];
+    let contents = if bytes.is_empty() { &pad[..] } else { bytes };
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST })
+}
+
+impl GpuBackend {
+    pub fn new(pb: &Problem, bvh: &Bvh) -> Result<GpuBackend> {
+        let ctx = Context::new()?;
+        let pipes = Pipelines::new(&ctx.device);
+        let verts: Vec<GpuVertex> = (0..pb.len())
+            .map(|i| GpuVertex {
+                pos: pb.pos[i].to_array(),
+                area: pb.area[i],
+                normal: pb.normal[i].to_array(),
+                pad: 0.0,
+                albedo: [pb.albedo[i][0], pb.albedo[i][1], pb.albedo[i][2], 0.0],
+                target: [pb.target[i][0], pb.target[i][1], pb.target[i][2], 0.0],
+                weight: [pb.weight[i][0], pb.weight[i][1], pb.weight[i][2], 0.0],
+                lower: [pb.lower[i][0], pb.lower[i][1], pb.lower[i][2], 0.0],
+            })
+            .collect();
+        let max = ctx.device.limits().max_storage_buffer_binding_size as usize;
+        let vb: &[u8] = bytemuck::cast_slice(&verts);
+        if vb.len() > max || bvh.tris.len() * 48 > max {
+            return Err(Error::Gpu(format!("the problem ({} vertices, {} triangles) exceeds the adapter's storage binding limit of {max} bytes", pb.len(), bvh.tris.len())));
+        }
+        if pb.len().div_ceil(WG as usize) > MAX_GROUPS as usize {
+            return Err(Error::Gpu(format!("{} vertices exceed one dispatch ({} workgroups of {WG})", pb.len(), MAX_GROUPS)));
+        }
+        let d = &ctx.device;
+        Ok(GpuBackend {
+            verts: storage(d, "verts", vb),
+            nodes: storage(d, "nodes", bytemuck::cast_slice(&bvh.nodes)),
+            tris: storage(d, "tris", bytemuck::cast_slice(&bvh.tris)),
+            n: pb.len() as u32,
+            words: pb.len().div_ceil(32).max(1) as u32,
+            eps: pb.eps,
+            ray_offset: pb.ray_offset,
+            norm2: pb.norm2,
+            vis: None,
+            vis_capacity: 0,
+            uploaded: Vec::new(),
+            ctx,
+            pipes,
+        })
+    }
+
+    fn read_back(&self, src: &wgpu::Buffer, size: u64, mut encoder: wgpu::CommandEncoder) -> Result<Vec<u8>> {
+        let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor { label: Some("readback"), size, usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+        encoder.copy_buffer_to_buffer(src, 0, &staging, 0, size);
+        self.ctx.queue.submit([encoder.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.ctx.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: None }).map_err(|e| Error::Gpu(format!("poll: {e}")))?;
+        rx.recv().map_err(|e| Error::Gpu(e.to_string()))?.map_err(|e| Error::Gpu(format!("map: {e}")))?;
+        let data = slice.get_mapped_range().map_err(|e| Error::Gpu(format!("mapped range: {e}")))?.to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+
+    fn try_trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
+        let d = &self.ctx.device;
+        let mut out = Vec::with_capacity(lights.len());
+        // Batches bounded by the second dispatch dimension.
+        for batch in lights.chunks(MAX_GROUPS as usize) {
+            let pos: Vec<[f32; 4]> = batch.iter().map(|p| p.extend(0.0).to_array()).collect();
+            let lb = storage(d, "light_pos", bytemuck::cast_slice(&pos));
+            let size = (batch.len() * self.words as usize * 4) as u64;
+            let bits = d.create_buffer(&wgpu::BufferDescriptor { label: Some("bits"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
+            // wgpu zero-initialises new buffers: every bit starts cleared.
+            let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.ray_offset };
+            let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("trace params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
+            let layout = self.pipes.trace.get_bind_group_layout(0);
+            let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("trace"),
+                layout: &layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.verts.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.nodes.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: self.tris.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: lb.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: bits.as_entire_binding() },
+                ],
+            });
+            let mut enc = d.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.pipes.trace);
+                pass.set_bind_group(0, &bg, &[]);
+                pass.dispatch_workgroups(self.n.div_ceil(WG).max(1), batch.len() as u32, 1);
+            }
+            let data = self.read_back(&bits, size, enc)?;
+            let words: &[u32] = bytemuck::cast_slice(&data);
+            out.extend(words.chunks(self.words as usize).map(|w| w.to_vec()));
+        }
+        Ok(out)
+    }
+
+    fn try_evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval> {
+        let d = &self.ctx.device;
+        let k = lights.len();
+        let wbytes = self.words as usize * 4;
+        if self.vis.is_none() || self.vis_capacity < k.max(1) {
+            let cap = k.max(1).next_power_of_two();
+            self.vis = Some(d.create_buffer(&wgpu::BufferDescriptor { label: Some("vis"), size: (cap * wbytes) as u64, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false }));
+            self.vis_capacity = cap;
+            self.uploaded.clear();
+        }
+        self.uploaded.resize(k, None);
+        let vbuf = self.vis.as_ref().expect("allocated above");
+        for j in 0..k {
+            if self.uploaded[j] != Some(vis.traced_at[j]) {
+                self.ctx.queue.write_buffer(vbuf, (j * wbytes) as u64, bytemuck::cast_slice(&vis.bits[j]));
+                self.uploaded[j] = Some(vis.traced_at[j]);
+            }
+        }
+        let mut lb: Vec<[f32; 4]> = Vec::with_capacity(2 * k);
+        for l in lights {
+            lb.push(l.pos.extend(0.0).to_array());
+            lb.push([l.rgb[0], l.rgb[1], l.rgb[2], 0.0]);
+        }
+        let lbuf = storage(d, "lights", bytemuck::cast_slice(&lb));
+        let groups = self.n.div_ceil(WG).max(1);
+        let stride = 8 * (k as u32 + 1);
+        let size = groups as u64 * stride as u64 * 4;
+        let partial = d.create_buffer(&wgpu::BufferDescriptor { label: Some("partial"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
+        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [ambient[0], ambient[1], ambient[2], 0.0], eps: self.eps, pad: [0.0; 3] };
+        let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("forward params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
+        let layout = self.pipes.forward.get_bind_group_layout(0);
+        let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("forward"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.verts.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: vbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: partial.as_entire_binding() },
+            ],
+        });
+        let mut enc = d.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipes.forward);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(groups, 1, 1);
+        }
+        let data = self.read_back(&partial, size, enc)?;
+        let p: &[f32] = bytemuck::cast_slice(&data);
+        let mut ev = Eval { grad: vec![[0.0; 6]; k], ..Default::default() };
+        let mut num = 0.0f64;
+        for g in 0..groups as usize {
+            let b = &p[g * stride as usize..(g + 1) * stride as usize];
+            for j in 0..k {
+                for q in 0..6 {
+                    ev.grad[j][q] += b[8 * j + q] as f64;
+                }
+            }
+            let t = &b[8 * k..];
+            ev.f += t[0] as f64;
+            num += t[1] as f64;
+            for c in 0..3 {
+                ev.grad_ambient[c] += t[2 + c] as f64;
+            }
+        }
+        let _ = vis;
+        Ok(ev_with_error(ev, num, self.norm2))
+    }
+}
+
+fn ev_with_error(mut ev: Eval, num: f64, norm2: f64) -> Eval {
+    ev.rel_error = if norm2 > 0.0 { (num / norm2).sqrt() } else { 0.0 };
+    ev
+}
+
+impl Backend for GpuBackend {
+    fn name(&self) -> String {
+        format!("wgpu ({}, {})", self.ctx.info.name, self.ctx.info.backend)
+    }
+    fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
+        self.try_trace(lights)
+    }
+    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval> {
+        self.try_evaluate(vis, lights, ambient)
+    }
+}

@@ -1,0 +1,172 @@
+//! Starting lights.
+//!
+//! - `grid:N`: the thesis's start, an N x N grid of lights in the horizontal mid-plane of
+//!   the scene's box (intensities fitted exactly rather than all set to 1).
+//! - `auto`: greedy, on a subsample of the vertices. Candidates are placed above the
+//!   vertices with the largest unexplained target, along their normal and short of the
+//!   opposite surface, and only in free space (rays in 14 directions must all hit front
+//!   faces: never inside a wall or outside the map). The candidate that removes most of
+//!   the residual (exact one-light least squares) is added, everything is refitted with a
+//!   short L-BFGS, and adding stops when the relative error improves by less than
+//!   `min_gain` or `max_lights` is reached.
+//! - `input`: the lights of the glTF (handled by the caller).
+
+use glam::Vec3;
+
+use crate::backend::Cpu;
+use crate::bvh::Bvh;
+use crate::fit::{Algorithm, Fitter, ParamSet, Phase};
+use crate::model::{geometry_term, radiance, Light, Problem};
+use crate::scene::Mesh;
+use crate::visibility;
+
+/// The 14 directions of the free-space test (6 axes, 8 diagonals).
+fn directions() -> Vec<Vec3> {
+    let mut d = vec![Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
+    for x in [-1.0, 1.0] {
+        for y in [-1.0, 1.0] {
+            for z in [-1.0f32, 1.0] {
+                d.push(Vec3::new(x, y, z).normalize());
+            }
+        }
+    }
+    d
+}
+
+/// True when `p` is inside the map's open space: every probe ray hits a front face.
+pub fn free_space(mesh: &Mesh, bvh: &Bvh, p: Vec3, far: f32) -> bool {
+    let mut bad = 0;
+    for d in directions() {
+        match bvh.first_hit(p, d * far, 1.0) {
+            None => bad += 1,
+            Some((_, t)) => {
+                let [a, b, c] = mesh.triangles[t as usize].map(|i| mesh.positions[i as usize]);
+                if (b - a).cross(c - a).dot(d) > 0.0 {
+                    bad += 1;
+                }
+            }
+        }
+        if bad > 1 {
+            return false;
+        }
+    }
+    true
+}
+
+pub fn grid(n: usize, lo: Vec3, hi: Vec3) -> Vec<Light> {
+    let n = n.max(1);
+    let mut v = Vec::with_capacity(n * n);
+    let y = 0.5 * (lo.y + hi.y);
+    for i in 0..n {
+        for k in 0..n {
+            let fx = (i as f32 + 0.5) / n as f32;
+            let fz = (k as f32 + 0.5) / n as f32;
+            v.push(Light { pos: Vec3::new(lo.x + fx * (hi.x - lo.x), y, lo.z + fz * (hi.z - lo.z)), rgb: [1.0; 3] });
+        }
+    }
+    v
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AutoStats {
+    pub sample_vertices: usize,
+    pub candidates_tried: usize,
+    pub added: usize,
+    /// Relative error on the subsample after each addition.
+    pub errors: Vec<f64>,
+}
+
+/// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
+pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], max_lights: usize, min_gain: f64, sample: usize, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
+    let sub = pb.subsample(sample);
+    let diag = (hi - lo).length().max(1e-3);
+    let mut backend = Cpu { pb: &sub, bvh };
+    let mut fit = Fitter::new(&sub, bvh, &mut backend, lo, hi);
+    fit.deadline = deadline;
+    for (l, locked) in start {
+        fit.add_light(*l, *locked);
+    }
+    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new() };
+    let mut err = if fit.lights.is_empty() { 1.0 } else { fit.fit_intensities() };
+    let spacing = 0.05 * diag;
+    while fit.lights.len() < max_lights && !fit.out_of_time() {
+        let x = radiance(&sub, &fit.vis, &fit.lights, fit.ambient.unwrap_or([0.0; 3]));
+        let mut order: Vec<(f64, usize)> = (0..sub.len())
+            .map(|i| {
+                let r: f64 = (0..3).map(|c| sub.weight[i][c] as f64 * ((sub.target[i][c] - x[i][c]).max(0.0) as f64)).sum();
+                (r * sub.area[i] as f64, i)
+            })
+            .filter(|(r, _)| *r > 0.0)
+            .collect();
+        order.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut picked: Vec<usize> = Vec::new();
+        for &(_, i) in &order {
+            if picked.len() >= 16 {
+                break;
+            }
+            if picked.iter().all(|&j| (sub.pos[j] - sub.pos[i]).length() > spacing) {
+                picked.push(i);
+            }
+        }
+        let mut cands = Vec::new();
+        for &i in &picked {
+            let (x0, n) = (sub.pos[i], sub.normal[i]);
+            let h = bvh.first_hit(x0 + n * sub.ray_offset, n * (0.3 * diag), 1.0).map_or(0.3 * diag, |(t, _)| t * 0.3 * diag);
+            for f in [0.2f32, 0.45, 0.7] {
+                let p = x0 + n * (f * h).max(2.0 * fit.min_dist);
+                if bvh.nearest(p).is_some_and(|(d, _)| d >= fit.min_dist) && free_space(mesh, bvh, p, 2.0 * diag) {
+                    cands.push(p);
+                }
+            }
+        }
+        if cands.is_empty() {
+            break;
+        }
+        stats.candidates_tried += cands.len();
+        // Score: error removed by the best non-negative intensity per channel.
+        let scored: Vec<(f64, Vec3, [f32; 3])> = {
+            use rayon::prelude::*;
+            cands
+                .par_iter()
+                .map(|&p| {
+                    let bits = visibility::trace_light(bvh, &sub, p);
+                    let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
+                    for i in 0..sub.len() {
+                        if bits[i >> 5] >> (i & 31) & 1 == 0 {
+                            continue;
+                        }
+                        let (g, _) = geometry_term(sub.pos[i], sub.normal[i], p, sub.eps);
+                        for c in 0..3 {
+                            let w = sub.area[i] as f64 * sub.weight[i][c] as f64;
+                            let b = sub.albedo[i][c] as f64 * g as f64 / std::f64::consts::PI;
+                            h[c] += w * b * (sub.target[i][c] - x[i][c]) as f64;
+                            g2[c] += w * b * b;
+                        }
+                    }
+                    let score: f64 = (0..3).map(|c| if g2[c] > 0.0 && h[c] > 0.0 { h[c] * h[c] / g2[c] } else { 0.0 }).sum();
+                    let rgb = [0, 1, 2].map(|c| if g2[c] > 0.0 { (h[c] / g2[c]).max(0.0) as f32 } else { 0.0 });
+                    (score, p, rgb)
+                })
+                .collect()
+        };
+        let Some(best) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)) else { break };
+        if !(best.0 > 0.0) {
+            break;
+        }
+        let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
+        let saved = (fit.lights.clone(), fit.locked.clone(), fit.vis.clone());
+        fit.add_light(Light { pos: best.1, rgb: best.2.map(|c| c.max(floor).max(1e-9)) }, false);
+        fit.fit_intensities();
+        fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
+        let e = fit.fit_intensities();
+        stats.errors.push(e);
+        if err - e < min_gain {
+            (fit.lights, fit.locked, fit.vis) = saved;
+            stats.errors.pop();
+            break;
+        }
+        stats.added += 1;
+        err = e;
+    }
+    (fit.lights.clone(), stats)
+}

@@ -1,0 +1,293 @@
+//! Writing the relit scene: the input glTF unchanged (lightmap still in its slot, so
+//! relight can run again on its output) plus `KHR_lights_punctual` point lights.
+//!
+//! The input's JSON is edited as a tree, never rebuilt, so whatever we do not understand
+//! survives. Point lights of the input are replaced: with `--init input` each fitted light
+//! updates its own node and light entry (the node's local translation is solved from its
+//! parent's world matrix); other input point lights lose their light (the node stays, as
+//! an empty). New lights get new root nodes `light_000`, ... Containers: `.gltf` in and
+//! out rewrites relative URIs for the output's folder; `.glb` keeps its BIN chunk; `.glb`
+//! to `.gltf` writes the BIN chunk beside the output; `.gltf` to `.glb` embeds a single
+//! external buffer. Writes are atomic; the input is never overwritten.
+
+use std::path::{Component, Path, PathBuf};
+
+use glam::{DMat4, DVec3};
+use serde_json::{json, Map, Value};
+
+use crate::error::{Error, Result};
+
+/// A fitted light to write.
+#[derive(Debug, Clone)]
+pub struct OutLight {
+    /// World position, meters.
+    pub position: DVec3,
+    /// Radiant intensity per channel, W/sr.
+    pub rgb: [f64; 3],
+    /// The input light (node index, parent world matrix) this one continues, if any.
+    pub source_node: Option<(usize, DMat4)>,
+    pub name: String,
+    /// Statistics and flags for `extras` (merged into the light's extras).
+    pub extras: Value,
+    pub locked: bool,
+}
+
+/// Luminous efficacy used by KHR_lights_punctual and Blender: candela = 683 * W/sr.
+pub const LM_PER_W: f64 = 683.0;
+
+/// The light's `range`: where its irradiance/pi at normal incidence falls to 1/256 of
+/// "full brightness" (e = 1), `sqrt(256 I / pi)` meters.
+pub fn range_m(intensity_w_sr: f64) -> f64 {
+    (256.0 * intensity_w_sr.max(0.0) / std::f64::consts::PI).sqrt()
+}
+
+struct Container {
+    json: Value,
+    bin: Option<Vec<u8>>,
+}
+
+fn read_container(path: &Path) -> Result<Container> {
+    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.display().to_string(), source: e })?;
+    if bytes.starts_with(b"glTF") {
+        let bad = |m: &str| Error::input(path, format!("GLB: {m}"));
+        let u32_at = |o: usize| -> Result<u32> { bytes.get(o..o + 4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).ok_or_else(|| bad("truncated header")) };
+        let total = (u32_at(8)? as usize).min(bytes.len());
+        let mut off = 12;
+        let mut json = None;
+        let mut bin = None;
+        while off + 8 <= total {
+            let len = u32_at(off)? as usize;
+            let kind = u32_at(off + 4)?;
+            let body = bytes.get(off + 8..off + 8 + len).ok_or_else(|| bad("chunk runs past the end"))?;
+            match kind {
+                0x4E4F_534A => json = Some(serde_json::from_slice(body).map_err(|e| bad(&format!("JSON chunk: {e}")))?),
+                0x004E_4942 => bin = Some(body.to_vec()),
+                _ => {}
+            }
+            off += 8 + len;
+        }
+        Ok(Container { json: json.ok_or_else(|| bad("no JSON chunk"))?, bin })
+    } else {
+        let json = serde_json::from_slice(&bytes).map_err(|e| Error::input(path, format!("JSON: {e}")))?;
+        Ok(Container { json, bin: None })
+    }
+}
+
+fn is_glb(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb"))
+}
+
+/// `target` relative to folder `from` (both absolute), with `/` separators.
+fn relative(from: &Path, target: &Path) -> String {
+    let f: Vec<Component> = from.components().collect();
+    let t: Vec<Component> = target.components().collect();
+    let common = f.iter().zip(&t).take_while(|(a, b)| a == b).count();
+    let mut parts: Vec<String> = vec!["..".into(); f.len() - common];
+    parts.extend(t[common..].iter().map(|c| c.as_os_str().to_string_lossy().into_owned()));
+    parts.join("/")
+}
+
+fn abs_dir(p: &Path) -> PathBuf {
+    let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf())
+}
+
+/// Rewrites the relative URIs of buffers and images so they resolve from `out_dir`.
+fn rebase_uris(json: &mut Value, in_dir: &Path, out_dir: &Path) {
+    if in_dir == out_dir {
+        return;
+    }
+    for key in ["buffers", "images"] {
+        let Some(arr) = json.get_mut(key).and_then(Value::as_array_mut) else { continue };
+        for item in arr {
+            let Some(uri) = item.get("uri").and_then(Value::as_str) else { continue };
+            if uri.starts_with("data:") || uri.contains("://") || uri.starts_with('/') {
+                continue;
+            }
+            let decoded = uri.replace("%20", " ");
+            let new = relative(out_dir, &in_dir.join(decoded)).replace(' ', "%20");
+            item["uri"] = Value::String(new);
+        }
+    }
+}
+
+fn light_json(l: &OutLight) -> Value {
+    let m = l.rgb.iter().copied().fold(0.0f64, f64::max);
+    let color = if m > 0.0 { l.rgb.map(|c| c / m) } else { [1.0; 3] };
+    let mut extras = match &l.extras {
+        Value::Object(o) => o.clone(),
+        _ => Map::new(),
+    };
+    if l.locked {
+        extras.insert("locked".into(), Value::Bool(true));
+    }
+    json!({
+        "name": l.name,
+        "type": "point",
+        "color": color,
+        "intensity": m * LM_PER_W,
+        "range": range_m(m),
+        "extras": Value::Object(extras),
+    })
+}
+
+/// Writes `input` plus `lights` to `output`.
+pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Value) -> Result<()> {
+    if q3gltf_convert::output::same_file(output, input) {
+        return Err(Error::Usage(format!("{}: the output would overwrite the input", output.display())));
+    }
+    let Container { mut json, bin } = read_container(input)?;
+    let root = json.as_object_mut().ok_or_else(|| Error::input(input, "top level is not an object"))?;
+
+    // The lights array: drop the input's point lights, keep the others, re-index nodes.
+    let old_lights: Vec<Value> = root
+        .get("extensions")
+        .and_then(|e| e.get("KHR_lights_punctual"))
+        .and_then(|k| k.get("lights"))
+        .and_then(Value::as_array)
+        .cloned()
+        .unwrap_or_default();
+    let mut remap = vec![None; old_lights.len()];
+    let mut new_lights = Vec::new();
+    for (i, l) in old_lights.iter().enumerate() {
+        if l.get("type").and_then(Value::as_str) != Some("point") {
+            remap[i] = Some(new_lights.len());
+            new_lights.push(l.clone());
+        }
+    }
+    let nodes = root.entry("nodes").or_insert_with(|| json!([]));
+    let nodes = nodes.as_array_mut().ok_or_else(|| Error::input(input, "nodes is not an array"))?;
+    for node in nodes.iter_mut() {
+        let Some(ext) = node.get_mut("extensions").and_then(Value::as_object_mut) else { continue };
+        let Some(idx) = ext.get("KHR_lights_punctual").and_then(|k| k.get("light")).and_then(Value::as_u64) else { continue };
+        match remap.get(idx as usize).copied().flatten() {
+            Some(n) => ext["KHR_lights_punctual"]["light"] = json!(n),
+            None => {
+                ext.remove("KHR_lights_punctual");
+            }
+        }
+        if ext.is_empty() {
+            node.as_object_mut().map(|o| o.remove("extensions"));
+        }
+    }
+    let mut new_roots = Vec::new();
+    for (k, l) in lights.iter().enumerate() {
+        let index = new_lights.len();
+        new_lights.push(light_json(l));
+        let attach = json!({ "KHR_lights_punctual": { "light": index } });
+        match l.source_node {
+            Some((node, parent)) if node < nodes.len() => {
+                let local = parent.inverse().transform_point3(l.position);
+                let n = &mut nodes[node];
+                if let Some(m) = n.get_mut("matrix").and_then(Value::as_array_mut) {
+                    if m.len() == 16 {
+                        m[12] = json!(local.x);
+                        m[13] = json!(local.y);
+                        m[14] = json!(local.z);
+                    }
+                } else {
+                    n["translation"] = json!([local.x, local.y, local.z]);
+                }
+                n["name"] = json!(l.name);
+                let ext = n.as_object_mut().unwrap().entry("extensions").or_insert_with(|| json!({}));
+                ext["KHR_lights_punctual"] = attach["KHR_lights_punctual"].clone();
+                if l.locked {
+                    n["extras"]["locked"] = Value::Bool(true);
+                }
+            }
+            _ => {
+                let _ = k;
+                new_roots.push(nodes.len());
+                nodes.push(json!({
+                    "name": l.name,
+                    "translation": [l.position.x, l.position.y, l.position.z],
+                    "extensions": attach,
+                }));
+            }
+        }
+    }
+    let scene_index = root.get("scene").and_then(Value::as_u64).unwrap_or(0) as usize;
+    let scenes = root.entry("scenes").or_insert_with(|| json!([{ "nodes": [] }]));
+    if let Some(scene) = scenes.as_array_mut().and_then(|s| s.get_mut(scene_index)) {
+        let list = scene.as_object_mut().unwrap().entry("nodes").or_insert_with(|| json!([]));
+        if let Some(list) = list.as_array_mut() {
+            list.extend(new_roots.into_iter().map(|n| json!(n)));
+        }
+        if !scene_extras.is_null() {
+            scene["extras"]["q3_relight"] = scene_extras;
+        }
+    }
+    let exts = root.entry("extensions").or_insert_with(|| json!({}));
+    if new_lights.is_empty() {
+        exts.as_object_mut().map(|o| o.remove("KHR_lights_punctual"));
+    } else {
+        exts["KHR_lights_punctual"] = json!({ "lights": new_lights });
+    }
+    if exts.as_object().is_some_and(|o| o.is_empty()) {
+        root.remove("extensions");
+    }
+    let used = root.entry("extensionsUsed").or_insert_with(|| json!([]));
+    if let Some(u) = used.as_array_mut() {
+        if !new_lights.is_empty() && !u.iter().any(|v| v == "KHR_lights_punctual") {
+            u.push(json!("KHR_lights_punctual"));
+        }
+    }
+    if root.get("extensionsUsed").and_then(Value::as_array).is_some_and(|u| u.is_empty()) {
+        root.remove("extensionsUsed");
+    }
+
+    let (in_dir, out_dir) = (abs_dir(input), abs_dir(output));
+    let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), source: e };
+    let mut bin = bin;
+    match (is_glb(input), is_glb(output)) {
+        (false, false) => rebase_uris(&mut json, &in_dir, &out_dir),
+        (true, true) => rebase_uris(&mut json, &in_dir, &out_dir),
+        (true, false) => {
+            rebase_uris(&mut json, &in_dir, &out_dir);
+            if let Some(b) = bin.take() {
+                let bin_path = output.with_extension("bin");
+                q3gltf_convert::output::write_atomic(&bin_path, &b).map_err(|e| io_err(&bin_path, e))?;
+                let name = bin_path.file_name().unwrap().to_string_lossy().replace(' ', "%20");
+                if let Some(b0) = json.get_mut("buffers").and_then(|b| b.get_mut(0)) {
+                    b0["uri"] = json!(name);
+                }
+            }
+        }
+        (false, true) => {
+            rebase_uris(&mut json, &in_dir, &out_dir);
+            let bufs = json.get("buffers").and_then(Value::as_array).map_or(0, Vec::len);
+            if bufs == 1 {
+                if let Some(uri) = json["buffers"][0].get("uri").and_then(Value::as_str).filter(|u| !u.starts_with("data:")) {
+                    let p = out_dir.join(uri.replace("%20", " "));
+                    bin = Some(std::fs::read(&p).map_err(|e| io_err(&p, e))?);
+                    json["buffers"][0].as_object_mut().unwrap().remove("uri");
+                }
+            }
+        }
+    }
+    let text = serde_json::to_vec(&json).map_err(|e| Error::Usage(format!("JSON: {e}")))?;
+    let bytes = if is_glb(output) { glb(&text, bin.as_deref()) } else { text };
+    q3gltf_convert::output::write_atomic(output, &bytes).map_err(|e| io_err(output, e))
+}
+
+fn glb(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
+    let pad = |n: usize| (4 - n % 4) % 4;
+    let jl = json.len() + pad(json.len());
+    let bl = bin.map_or(0, |b| b.len() + pad(b.len()));
+    let total = 12 + 8 + jl + if bin.is_some() { 8 + bl } else { 0 };
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(jl as u32).to_le_bytes());
+    out.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+    out.extend_from_slice(json);
+    out.resize(out.len() + pad(json.len()), b' ');
+    if let Some(b) = bin {
+        out.extend_from_slice(&(bl as u32).to_le_bytes());
+        out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+        out.extend_from_slice(b);
+        out.resize(out.len() + pad(b.len()), 0);
+    }
+    out
+}

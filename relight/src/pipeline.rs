@@ -1,0 +1,401 @@
+//! The whole relight: read, subdivide, project the target, build the BVH, choose the
+//! starting lights, run the scheme's phases, prune and merge, decide on the ambient term,
+//! write the glTF, and gather the report.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use glam::{DMat4, Vec3};
+use serde::Serialize;
+use serde_json::json;
+
+use crate::backend::{Backend, Cpu};
+use crate::bvh::Bvh;
+use crate::error::{Error, Result};
+use crate::fit::{Fitter, IterRecord, PhaseSummary};
+use crate::gltf_in;
+use crate::init;
+use crate::lights_out::{self, OutLight, LM_PER_W};
+use crate::model::{Light, Problem};
+use crate::schemes;
+use crate::subdivide::{self, Bound};
+use crate::target::{self, TargetStats};
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Subdivide {
+    Off,
+    /// About one lightmap texel per edge.
+    Lightmap,
+    /// At most this many meters per edge.
+    Meters(f32),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Init {
+    Auto,
+    Grid(usize),
+    Input,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BackendChoice {
+    Auto,
+    Wgpu,
+    Cpu,
+}
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    pub subdivide: Subdivide,
+    pub max_vertices: usize,
+    pub init: Init,
+    pub scheme: String,
+    pub max_lights: usize,
+    /// Caps every phase's iterations.
+    pub max_iterations: Option<usize>,
+    pub time_limit: Option<Duration>,
+    pub backend: BackendChoice,
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            input: PathBuf::new(),
+            output: PathBuf::new(),
+            subdivide: Subdivide::Lightmap,
+            max_vertices: 1_500_000,
+            init: Init::Auto,
+            scheme: "default".into(),
+            max_lights: 32,
+            max_iterations: None,
+            time_limit: None,
+            backend: BackendChoice::Auto,
+            seed: 1,
+        }
+    }
+}
+
+/// What the command line shows while the work goes on.
+pub trait Progress {
+    fn stage(&mut self, _name: &str) {}
+    fn phase(&mut self, _name: &str, _max_iterations: usize) {}
+    fn iteration(&mut self, _rec: &IterRecord) {}
+    fn phase_done(&mut self) {}
+}
+pub struct Silent;
+impl Progress for Silent {}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LightReport {
+    pub name: String,
+    pub position_m: [f64; 3],
+    pub intensity_cd: f64,
+    pub color: [f64; 3],
+    pub range_m: f64,
+    /// Share of the model's area-weighted radiance that comes from this light.
+    pub energy_share: f64,
+    pub locked: bool,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub input: String,
+    pub output: String,
+    pub backend: String,
+    pub backend_reason: String,
+    pub scheme: String,
+    pub init: String,
+    pub vertices_input: usize,
+    pub triangles_input: usize,
+    pub subdivision: Option<subdivide::Stats>,
+    pub target: TargetStats,
+    pub problem_vertices: usize,
+    pub rel_error_initial: f64,
+    pub rel_error_final: f64,
+    pub lights: Vec<LightReport>,
+    pub ambient: Option<[f32; 3]>,
+    pub ambient_note: String,
+    pub pruned: usize,
+    pub merged: usize,
+    pub auto: Option<init::AutoStats>,
+    pub phases: Vec<PhaseSummary>,
+    pub iterations: Vec<IterRecord>,
+    pub rays_traced: u64,
+    pub evaluations: usize,
+    /// Seconds per stage, in order.
+    pub stage_times_s: Vec<(String, f64)>,
+    pub total_time_s: f64,
+    pub skipped_primitives: Vec<String>,
+}
+
+struct Stages {
+    t: Instant,
+    list: Vec<(String, f64)>,
+}
+impl Stages {
+    fn done(&mut self, name: &str) {
+        self.list.push((name.to_string(), self.t.elapsed().as_secs_f64()));
+        self.t = Instant::now();
+    }
+}
+
+/// Picks the backend. `auto` takes a hardware GPU when wgpu finds one; a software adapter
+/// (lavapipe, llvmpipe) is slower than the CPU path, so `auto` then uses the CPU.
+pub fn choose_backend<'a>(choice: BackendChoice, pb: &'a Problem, bvh: &'a Bvh) -> Result<(Box<dyn Backend + 'a>, String)> {
+    match choice {
+        BackendChoice::Cpu => Ok((Box::new(Cpu { pb, bvh }), "--backend cpu".into())),
+        BackendChoice::Wgpu => {
+            let g = crate::gpu::GpuBackend::new(pb, bvh)?;
+            Ok((Box::new(g), "--backend wgpu".into()))
+        }
+        BackendChoice::Auto => match crate::gpu::Context::probe() {
+            Ok(info) if !info.software => {
+                let g = crate::gpu::GpuBackend::new(pb, bvh)?;
+                Ok((Box::new(g), format!("auto: hardware adapter {}", info.name)))
+            }
+            Ok(info) => Ok((Box::new(Cpu { pb, bvh }), format!("auto: only a software adapter ({}), the CPU path is faster", info.name))),
+            Err(e) => Ok((Box::new(Cpu { pb, bvh }), format!("auto: no wgpu adapter ({e})"))),
+        },
+    }
+}
+
+pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
+    let t_all = Instant::now();
+    let deadline = opts.time_limit.map(|d| t_all + d);
+    let mut st = Stages { t: Instant::now(), list: Vec::new() };
+    if lights_out_same(opts) {
+        return Err(Error::Usage(format!("{}: the output would overwrite the input", opts.output.display())));
+    }
+    let phases = schemes::phases(&opts.scheme).ok_or_else(|| {
+        Error::Usage(format!("unknown scheme {:?}; known: {}", opts.scheme, schemes::NAMES.iter().map(|n| n.0).collect::<Vec<_>>().join(", ")))
+    })?;
+
+    progress.stage("read");
+    let mut scene = gltf_in::read(&opts.input)?;
+    let (vertices_input, triangles_input) = (scene.mesh.positions.len(), scene.mesh.triangles.len());
+    st.done("read");
+
+    progress.stage("subdivide");
+    let bound = match opts.subdivide {
+        Subdivide::Off => None,
+        Subdivide::Lightmap => Some(Bound::Texels(1.0)),
+        Subdivide::Meters(m) => Some(Bound::Meters(m)),
+    };
+    let subdivision = bound.map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
+    st.done("subdivide");
+
+    progress.stage("target");
+    let (tg, tstats) = target::project_cpu(&scene);
+    st.done("target");
+    if tstats.with_target == 0 {
+        return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
+    }
+
+    progress.stage("bvh");
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length();
+    let pb = Problem::new(&scene.mesh, &tg, diag);
+    let bvh = Bvh::build(&scene.mesh);
+    st.done("bvh");
+
+    let (mut backend, reason) = choose_backend(opts.backend, &pb, &bvh)?;
+    let backend_name = backend.name();
+    st.done("backend");
+
+    // Starting lights.
+    progress.stage("init");
+    let input_lights: Vec<(Light, bool, usize)> = scene
+        .lights
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            let i = l.intensity_cd as f64 / LM_PER_W;
+            (Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32) }, l.locked, k)
+        })
+        .collect();
+    let mut auto_stats = None;
+    let (start, sources): (Vec<(Light, bool)>, Vec<Option<usize>>) = match &opts.init {
+        Init::Input => {
+            if input_lights.is_empty() {
+                return Err(Error::Usage(format!("{}: --init input, but the file has no point lights", opts.input.display())));
+            }
+            (input_lights.iter().map(|(l, k, _)| (*l, *k)).collect(), input_lights.iter().map(|x| Some(x.2)).collect())
+        }
+        Init::Grid(n) => {
+            let g = init::grid(*n, lo, hi);
+            let s = vec![None; g.len()];
+            (g.into_iter().map(|l| (l, false)).collect(), s)
+        }
+        Init::Auto => {
+            // Locked input lights stay (the user's decision); the rest is placed anew.
+            let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
+            let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.004, 40_000, deadline);
+            auto_stats = Some(stats);
+            src.resize(lights.len(), None);
+            let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
+            (lights.into_iter().zip(locked).collect(), src)
+        }
+    };
+    st.done("init");
+
+    let mut fit = Fitter::new(&pb, &bvh, backend.as_mut(), lo, hi);
+    fit.deadline = deadline;
+    let mut sources = sources;
+    for (l, locked) in &start {
+        fit.add_light(*l, *locked);
+    }
+    // Keep `sources` aligned with the lights through pruning and merging: tag by position.
+    let rel_error_initial = if matches!(opts.init, Init::Input) { fit.eval().rel_error } else { fit.fit_intensities() };
+    st.done("start");
+
+    let history_cb: Box<dyn FnMut(&IterRecord)> = Box::new(|_r: &IterRecord| {});
+    fit.on_iter = Some(history_cb);
+    for (k, mut phase) in phases.into_iter().enumerate() {
+        if fit.out_of_time() {
+            break;
+        }
+        if let Some(m) = opts.max_iterations {
+            phase.max_iterations = phase.max_iterations.min(m);
+        }
+        progress.phase(&format!("phase {}", k + 1), phase.max_iterations);
+        // Progress per iteration goes through the fitter's history; show it after the phase.
+        fit.run_phase(&format!("{} phase {}", opts.scheme, k + 1), phase);
+        for r in fit.history.iter().filter(|r| r.phase == fit.phase_index - 1) {
+            progress.iteration(r);
+        }
+        progress.phase_done();
+    }
+    st.done("optimise");
+
+    // As few lights as the scene needs; ambient only where it lowers the error.
+    progress.stage("prune");
+    let mut pruned = 0;
+    let mut merged = 0;
+    if !matches!(opts.init, Init::Grid(_)) || opts.scheme == "default" {
+        let before: Vec<Vec3> = fit.lights.iter().map(|l| l.pos).collect();
+        pruned = fit.prune(0.002);
+        merged = fit.merge((0.03 * diag).max(2.0 * fit.min_dist), 0.002);
+        // Re-associate input sources by position (pruning and merging removed entries).
+        sources = fit.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
+    }
+    let err_no_ambient = fit.fit_intensities();
+    let saved = (fit.lights.clone(), fit.vis.clone());
+    fit.ambient = Some([1e-6; 3]);
+    let err_ambient = fit.fit_intensities();
+    let ambient_note;
+    if err_ambient < err_no_ambient - 0.005 {
+        ambient_note = format!("kept: relative error {err_no_ambient:.4} -> {err_ambient:.4}");
+    } else {
+        fit.ambient = None;
+        (fit.lights, fit.vis) = saved;
+        ambient_note = format!("not used: relative error {err_no_ambient:.4} -> {err_ambient:.4} with it");
+    }
+    if (pruned + merged > 0 || fit.ambient.is_some()) && !fit.out_of_time() {
+        let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(40).min(40) };
+        fit.run_phase("polish", polish);
+    }
+    let final_eval = fit.eval();
+    st.done("prune");
+
+    // Energy share of each light (area-weighted model radiance).
+    let shares = energy_shares(&pb, &fit);
+    let lights: Vec<Light> = fit.lights.clone();
+    let locked = fit.locked.clone();
+    let out_lights: Vec<OutLight> = lights
+        .iter()
+        .enumerate()
+        .map(|(j, l)| {
+            let src = sources.get(j).copied().flatten().map(|k| &scene.lights[k]);
+            OutLight {
+                position: l.pos.as_dvec3(),
+                rgb: l.rgb.map(|c| c as f64),
+                source_node: src.map(|s| (s.node, DMat4::from_cols_array(&s.parent_world.to_cols_array().map(|v| v as f64)))),
+                name: format!("light_{j:03}"),
+                extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
+                locked: locked[j],
+            }
+        })
+        .collect();
+    let phases_done = fit.phases.clone();
+    let history = fit.history.clone();
+    let evaluations = fit.evaluations;
+    let rays = fit.vis.rays;
+    let ambient = fit.ambient;
+    drop(fit);
+    progress.stage("write");
+    let scene_extras = json!({ "rel_error": final_eval.rel_error, "lights": out_lights.len(), "ambient": ambient });
+    lights_out::write(&opts.input, &opts.output, &out_lights, scene_extras)?;
+    st.done("write");
+
+    let light_reports = out_lights
+        .iter()
+        .zip(&shares)
+        .map(|(l, s)| {
+            let m = l.rgb.iter().copied().fold(0.0f64, f64::max);
+            LightReport {
+                name: l.name.clone(),
+                position_m: l.position.to_array(),
+                intensity_cd: m * LM_PER_W,
+                color: if m > 0.0 { l.rgb.map(|c| c / m) } else { [1.0; 3] },
+                range_m: lights_out::range_m(m),
+                energy_share: *s,
+                locked: l.locked,
+            }
+        })
+        .collect();
+    Ok(Report {
+        input: opts.input.display().to_string(),
+        output: opts.output.display().to_string(),
+        backend: backend_name,
+        backend_reason: reason,
+        scheme: opts.scheme.clone(),
+        init: match &opts.init {
+            Init::Auto => "auto".into(),
+            Init::Grid(n) => format!("grid:{n}"),
+            Init::Input => "input".into(),
+        },
+        vertices_input,
+        triangles_input,
+        subdivision,
+        target: tstats,
+        problem_vertices: pb.len(),
+        rel_error_initial,
+        rel_error_final: final_eval.rel_error,
+        lights: light_reports,
+        ambient,
+        ambient_note,
+        pruned,
+        merged,
+        auto: auto_stats,
+        phases: phases_done,
+        iterations: history,
+        rays_traced: rays,
+        evaluations,
+        stage_times_s: st.list,
+        total_time_s: t_all.elapsed().as_secs_f64(),
+        skipped_primitives: scene.skipped,
+    })
+}
+
+fn lights_out_same(opts: &Options) -> bool {
+    q3gltf_convert::output::same_file(&opts.output, &opts.input)
+}
+
+fn energy_shares(pb: &Problem, fit: &Fitter) -> Vec<f64> {
+    let mut e = vec![0.0f64; fit.lights.len()];
+    for (j, l) in fit.lights.iter().enumerate() {
+        for i in 0..pb.len() {
+            if !fit.vis.visible(j, i) {
+                continue;
+            }
+            let (g, _) = crate::model::geometry_term(pb.pos[i], pb.normal[i], l.pos, pb.eps);
+            e[j] += pb.area[i] as f64 * (0..3).map(|c| pb.albedo[i][c] as f64 * l.rgb[c] as f64).sum::<f64>() * g as f64;
+        }
+    }
+    let total: f64 = e.iter().sum();
+    e.iter().map(|v| if total > 0.0 { v / total } else { 0.0 }).collect()
+}

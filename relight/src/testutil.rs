@@ -1,0 +1,70 @@
+//! Small synthetic scenes for unit tests: a closed box room seen from inside, with a
+//! target rendered by the CPU forward model from known lights.
+
+use glam::{Vec2, Vec3};
+
+use crate::scene::Mesh;
+use crate::target::Target;
+
+/// A 4 x 2.5 x 3 m box room (normals inward), each wall an `n x n` grid; the target is a
+/// smooth made-up field (tests of the gradient do not need it to be realisable).
+pub fn room(n: usize) -> (Mesh, Target) {
+    let size = Vec3::new(4.0, 2.5, 3.0);
+    let mut m = Mesh::default();
+    // (origin, u, v) with u x v pointing into the room.
+    let faces = [
+        (Vec3::ZERO, Vec3::new(size.x, 0.0, 0.0), Vec3::new(0.0, 0.0, size.z)), // floor, normal +y? (x cross z = -y) fixed below
+        (Vec3::new(0.0, size.y, 0.0), Vec3::new(0.0, 0.0, size.z), Vec3::new(size.x, 0.0, 0.0)),
+        (Vec3::ZERO, Vec3::new(0.0, size.y, 0.0), Vec3::new(size.x, 0.0, 0.0)),
+        (Vec3::new(0.0, 0.0, size.z), Vec3::new(size.x, 0.0, 0.0), Vec3::new(0.0, size.y, 0.0)),
+        (Vec3::ZERO, Vec3::new(0.0, 0.0, size.z), Vec3::new(0.0, size.y, 0.0)),
+        (Vec3::new(size.x, 0.0, 0.0), Vec3::new(0.0, size.y, 0.0), Vec3::new(0.0, 0.0, size.z)),
+    ];
+    let center = size * 0.5;
+    for (o, u, v) in faces {
+        let mut normal = u.cross(v).normalize();
+        let (u, v) = if normal.dot(center - (o + (u + v) * 0.5)) < 0.0 {
+            normal = -normal;
+            (v, u)
+        } else {
+            (u, v)
+        };
+        let base = m.positions.len() as u32;
+        for i in 0..=n {
+            for k in 0..=n {
+                let (a, b) = (i as f32 / n as f32, k as f32 / n as f32);
+                m.positions.push(o + u * a + v * b);
+                m.normals.push(normal);
+                m.uv0.push(Vec2::new(a, b));
+                m.uv1.push(Vec2::new(a, b));
+                m.colors.push([1.0; 3]);
+                m.v_material.push(0);
+            }
+        }
+        let idx = |i: usize, k: usize| base + (i * (n + 1) + k) as u32;
+        for i in 0..n {
+            for k in 0..n {
+                m.triangles.push([idx(i, k), idx(i + 1, k), idx(i + 1, k + 1)]);
+                m.triangles.push([idx(i, k), idx(i + 1, k + 1), idx(i, k + 1)]);
+                m.tri_material.extend([0, 0]);
+            }
+        }
+    }
+    m.reweld();
+    let nv = m.positions.len();
+    let mut area = vec![0.0f32; nv];
+    for t in 0..m.triangles.len() {
+        let a = m.triangle_area(t);
+        for &v in &m.triangles[t] {
+            area[v as usize] += a / 3.0;
+        }
+    }
+    let tg = Target {
+        value: m.positions.iter().map(|p| [0.2 + 0.05 * p.x, 0.3 + 0.04 * p.y, 0.25 + 0.03 * p.z]).collect(),
+        albedo: m.positions.iter().map(|p| [0.5 + 0.05 * p.x, 0.6, 0.7 - 0.05 * p.z]).collect(),
+        weight: (0..nv).map(|i| if i % 7 == 0 { [0.0, 1.0, 0.5] } else { [1.0; 3] }).collect(),
+        lower: (0..nv).map(|i| if i % 7 == 0 { [0.4, 0.0, 0.3] } else { [0.0; 3] }).collect(),
+        area,
+    };
+    (m, tg)
+}

@@ -1,0 +1,65 @@
+//! Texture lookups shared by the CPU target projection and mirrored, operation for
+//! operation, by `shaders/target.wgsl`: bilinear filtering with the glTF wrap modes (texel
+//! centres at half-integers, UV origin top-left), sRGB decoding, and the censoring test of
+//! lightmap texels (a channel stored as 255 is a lower bound, CONVENTIONS.md).
+
+use crate::scene::{Texture, Wrap};
+
+/// sRGB transfer function, decoded to linear [0, 1].
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn wrap_index(i: i64, n: u32, mode: Wrap) -> u32 {
+    let n = n.max(1) as i64;
+    let r = match mode {
+        Wrap::Clamp => i.clamp(0, n - 1),
+        Wrap::Repeat => i.rem_euclid(n),
+        Wrap::Mirror => {
+            let p = i.rem_euclid(2 * n);
+            if p < n {
+                p
+            } else {
+                2 * n - 1 - p
+            }
+        }
+    };
+    r as u32
+}
+
+/// The texel holding `uv` (nearest filtering), after wrapping.
+pub fn nearest(tex: &Texture, u: f32, v: f32) -> [u8; 4] {
+    let x = (u * tex.width as f32).floor() as i64;
+    let y = (v * tex.height as f32).floor() as i64;
+    texel(tex, x, y)
+}
+
+fn texel(tex: &Texture, x: i64, y: i64) -> [u8; 4] {
+    let x = wrap_index(x, tex.width, tex.wrap_s);
+    let y = wrap_index(y, tex.height, tex.wrap_t);
+    let o = (y as usize * tex.width as usize + x as usize) * 4;
+    [tex.rgba8[o], tex.rgba8[o + 1], tex.rgba8[o + 2], tex.rgba8[o + 3]]
+}
+
+/// Bilinear lookup of the stored values, each channel in [0, 1], after `decode` is applied
+/// to every tap (decoding before filtering, as GPUs do for sRGB textures).
+pub fn bilinear(tex: &Texture, u: f32, v: f32, decode: impl Fn(f32) -> f32) -> [f32; 3] {
+    let fx = u * tex.width as f32 - 0.5;
+    let fy = v * tex.height as f32 - 0.5;
+    let x0 = fx.floor();
+    let y0 = fy.floor();
+    let (tx, ty) = (fx - x0, fy - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let mut out = [0.0f32; 3];
+    for (dx, dy, w) in [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)] {
+        let t = texel(tex, x0 + dx, y0 + dy);
+        for c in 0..3 {
+            out[c] += w * decode(t[c] as f32 / 255.0);
+        }
+    }
+    out
+}

@@ -1,0 +1,84 @@
+// Shadow rays through the BVH of relight/src/bvh.rs (same layout, same tests; the CPU
+// reference is `Bvh::occluded` and `visibility::visible_from`).
+//
+// Node: an interior node's left child is the next node, `right_or_first` its right child;
+// a leaf (count > 0) holds triangles right_or_first .. right_or_first + count.
+
+struct Node {
+    min: vec3<f32>,
+    right_or_first: u32,
+    max: vec3<f32>,
+    count: u32,
+}
+
+struct Tri {
+    v0: vec4<f32>,
+    e1: vec4<f32>,
+    e2: vec4<f32>,
+}
+
+const MAX_DEPTH: u32 = 48u;
+
+fn slab(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
+    let t0 = (node.min - o) * inv;
+    let t1 = (node.max - o) * inv;
+    let tn = min(t0, t1);
+    let tf = max(t0, t1);
+    let near = max(max(max(tn.x, tn.y), tn.z), 0.0);
+    let far = min(min(min(tf.x, tf.y), tf.z), t_max);
+    return !(near > far);
+}
+
+// Moeller-Trumbore, two-sided; returns the ray parameter or -1.
+fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    let e1 = tri.e1.xyz;
+    let e2 = tri.e2.xyz;
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if (det == 0.0) {
+        return -1.0;
+    }
+    let inv = 1.0 / det;
+    let s = o - tri.v0.xyz;
+    let u = dot(s, p) * inv;
+    if (u < 0.0 || u > 1.0) {
+        return -1.0;
+    }
+    let q = cross(s, e1);
+    let v = dot(d, q) * inv;
+    if (v < 0.0 || u + v > 1.0) {
+        return -1.0;
+    }
+    return dot(e2, q) * inv;
+}
+
+fn occluded(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
+    if (arrayLength(&tris) == 0u) {
+        return false;
+    }
+    let inv = 1.0 / d;
+    var stack: array<u32, 48>;
+    var sp = 1u;
+    stack[0] = 0u;
+    while (sp > 0u) {
+        sp = sp - 1u;
+        let here = stack[sp];
+        let node = nodes[here];
+        if (!slab(node, o, inv, t_max)) {
+            continue;
+        }
+        if (node.count > 0u) {
+            for (var k = 0u; k < node.count; k = k + 1u) {
+                let t = intersect(tris[node.right_or_first + k], o, d);
+                if (t > 0.0 && t < t_max) {
+                    return true;
+                }
+            }
+        } else if (sp + 2u <= MAX_DEPTH) {
+            stack[sp] = node.right_or_first;
+            stack[sp + 1u] = here + 1u;
+            sp = sp + 2u;
+        }
+    }
+    return false;
+}

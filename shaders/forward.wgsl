@@ -1,0 +1,138 @@
+// Forward model, objective and gradient (relight/src/model.rs is the CPU reference and
+// documents the math). One invocation per problem vertex; each workgroup reduces its
+// vertices' contributions and writes one block of partial sums:
+//   block[wg * stride + 8 * j + 0..6]  = dF/dp_j (3), dF/dI_j (3)
+//   block[wg * stride + 8 * K + 0..5]  = F, sum A w (x - t)^2, dF/da (3)
+// Needs problem.wgsl prepended.
+
+struct Params {
+    n: u32,
+    k: u32,
+    words: u32,
+    stride: u32,
+    ambient: vec4<f32>,
+    eps: f32,
+    pad0: f32,
+    pad1: f32,
+    pad2: f32,
+}
+
+@group(0) @binding(0) var<uniform> prm: Params;
+@group(0) @binding(1) var<storage, read> verts: array<Vertex>;
+@group(0) @binding(2) var<storage, read> lights: array<vec4<f32>>; // pos, rgb per light
+@group(0) @binding(3) var<storage, read> vis: array<u32>;
+@group(0) @binding(4) var<storage, read_write> partial: array<f32>;
+
+const WG: u32 = 64u;
+const PI: f32 = 3.14159265358979;
+var<workgroup> red_a: array<vec4<f32>, 64>;
+var<workgroup> red_b: array<vec4<f32>, 64>;
+
+struct G {
+    g: f32,
+    dg: vec3<f32>,
+}
+
+fn geometry_term(x: vec3<f32>, n: vec3<f32>, p: vec3<f32>, eps: f32) -> G {
+    let d = p - x;
+    let s = dot(n, d);
+    let r2 = dot(d, d);
+    if (!(s > 0.0) || !(r2 > 0.0)) {
+        return G(0.0, vec3<f32>(0.0));
+    }
+    let r = sqrt(r2);
+    let e2 = eps * eps;
+    if (r2 > e2) {
+        let r3 = r2 * r;
+        return G(s / r3, n / r3 - d * (3.0 * s / (r3 * r2)));
+    }
+    return G(s / (r * e2), n / (r * e2) - d * (s / (r2 * r * e2)));
+}
+
+fn visible(j: u32, i: u32) -> bool {
+    return ((vis[j * prm.words + (i >> 5u)] >> (i & 31u)) & 1u) == 1u;
+}
+
+fn reduce(lid: u32) {
+    for (var s = WG / 2u; s > 0u; s = s >> 1u) {
+        workgroupBarrier();
+        if (lid < s) {
+            red_a[lid] = red_a[lid] + red_a[lid + s];
+            red_b[lid] = red_b[lid] + red_b[lid + s];
+        }
+    }
+    workgroupBarrier();
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let i = gid.x;
+    let lid = lid3.x;
+    let live = i < prm.n;
+    var v: Vertex;
+    if (live) {
+        v = verts[i];
+    }
+    // Irradiance (before 1/pi) per channel.
+    var e = vec3<f32>(0.0);
+    if (live) {
+        for (var j = 0u; j < prm.k; j = j + 1u) {
+            if (visible(j, i)) {
+                let gt = geometry_term(v.pos, v.normal, lights[2u * j].xyz, prm.eps);
+                e = e + lights[2u * j + 1u].xyz * gt.g;
+            }
+        }
+    }
+    var rho_a = vec3<f32>(0.0);
+    var f = 0.0;
+    var num = 0.0;
+    var ga = vec3<f32>(0.0);
+    if (live) {
+        for (var c = 0u; c < 3u; c = c + 1u) {
+            let a = v.albedo[c];
+            let x = a * (e[c] / PI + prm.ambient[c]);
+            let w = v.weight[c];
+            let two = x - v.goal[c];
+            let one = min(x - v.lower[c], 0.0);
+            f = f + 0.5 * v.area * (w * two * two + (1.0 - w) * one * one);
+            num = num + v.area * w * two * two;
+            let rho = v.area * (w * two + (1.0 - w) * one);
+            rho_a[c] = rho * a / PI;
+            ga[c] = rho * a;
+        }
+    }
+    let base = wid.x * prm.stride;
+    for (var j = 0u; j < prm.k; j = j + 1u) {
+        var gp = vec3<f32>(0.0);
+        var gi = vec3<f32>(0.0);
+        if (live && visible(j, i)) {
+            let gt = geometry_term(v.pos, v.normal, lights[2u * j].xyz, prm.eps);
+            gi = rho_a * gt.g;
+            gp = gt.dg * dot(rho_a, lights[2u * j + 1u].xyz);
+        }
+        red_a[lid] = vec4<f32>(gp, 0.0);
+        red_b[lid] = vec4<f32>(gi, 0.0);
+        reduce(lid);
+        if (lid == 0u) {
+            let o = base + 8u * j;
+            partial[o] = red_a[0].x;
+            partial[o + 1u] = red_a[0].y;
+            partial[o + 2u] = red_a[0].z;
+            partial[o + 3u] = red_b[0].x;
+            partial[o + 4u] = red_b[0].y;
+            partial[o + 5u] = red_b[0].z;
+        }
+        workgroupBarrier();
+    }
+    red_a[lid] = vec4<f32>(f, num, 0.0, 0.0);
+    red_b[lid] = vec4<f32>(ga, 0.0);
+    reduce(lid);
+    if (lid == 0u) {
+        let o = base + 8u * prm.k;
+        partial[o] = red_a[0].x;
+        partial[o + 1u] = red_a[0].y;
+        partial[o + 2u] = red_b[0].x;
+        partial[o + 3u] = red_b[0].y;
+        partial[o + 4u] = red_b[0].z;
+    }
+}

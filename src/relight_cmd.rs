@@ -1,0 +1,165 @@
+//! `q3gltf relight`: argument parsing, progress display and the final summary; the work is
+//! `q3gltf_relight::pipeline::run`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use q3gltf_relight::fit::IterRecord;
+use q3gltf_relight::pipeline::{self, BackendChoice, Init, Options, Progress, Subdivide};
+use q3gltf_relight::report;
+
+#[derive(Args)]
+pub struct RelightArgs {
+    /// Input scene (.gltf or .glb): the output of `q3gltf convert`, or that scene after a
+    /// Blender import/export. The lightmap must be the occlusionTexture on TEXCOORD_1.
+    pub input: PathBuf,
+    /// Output (.gltf or .glb): the input scene plus KHR_lights_punctual point lights.
+    #[arg(short, long, value_name = "OUT")]
+    pub output: PathBuf,
+    /// Refine the mesh before projecting the target: `lightmap` (no edge longer than one
+    /// lightmap texel), `off`, or a largest edge length in meters.
+    #[arg(long, default_value = "lightmap", value_name = "lightmap|off|METERS")]
+    pub subdivide: String,
+    /// Vertex budget of the subdivision.
+    #[arg(long = "max-vertices", default_value_t = 1_500_000)]
+    pub max_vertices: usize,
+    /// Starting lights: `auto` (greedy placement in free space, as few as needed),
+    /// `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a light with
+    /// extras `"locked": true` is kept fixed).
+    #[arg(long, default_value = "auto", value_name = "auto|grid:N|input")]
+    pub init: String,
+    /// Optimisation scheme: default, fast, thesis1..thesis5 (Table 5.1 of the thesis).
+    #[arg(long, default_value = "default")]
+    pub scheme: String,
+    /// Most lights `auto` places.
+    #[arg(long = "max-lights", default_value_t = 32)]
+    pub max_lights: usize,
+    /// Caps every phase's iterations.
+    #[arg(long = "max-iterations")]
+    pub max_iterations: Option<usize>,
+    /// Stop optimising after this many seconds (the result so far is written).
+    #[arg(long = "time-limit", value_name = "SECONDS")]
+    pub time_limit: Option<f64>,
+    /// Where the forward model runs: `auto` (a hardware GPU if wgpu finds one, else the
+    /// CPU), `wgpu` (any adapter, software Vulkan included), `cpu`.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "wgpu", "cpu"])]
+    pub backend: String,
+    /// Write the run's report (per-iteration time, objective, error; stages) as JSON.
+    #[arg(long, value_name = "report.json")]
+    pub report: Option<PathBuf>,
+    /// Plot relative error against time as a PNG.
+    #[arg(long, value_name = "curve.png")]
+    pub plot: Option<PathBuf>,
+    /// Seed for the random choices (subsampling is deterministic; kept for reproducibility).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// No progress display.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+struct Bars {
+    quiet: bool,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Progress for Bars {
+    fn stage(&mut self, name: &str) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+        if !self.quiet {
+            let b = indicatif::ProgressBar::new_spinner();
+            b.set_message(name.to_string());
+            b.enable_steady_tick(Duration::from_millis(120));
+            self.bar = Some(b);
+        }
+    }
+    fn phase(&mut self, name: &str, max_iterations: usize) {
+        self.stage(name);
+        if let Some(b) = &self.bar {
+            b.set_length(max_iterations as u64);
+            b.set_style(indicatif::ProgressStyle::with_template("{msg:12} [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+        }
+    }
+    fn iteration(&mut self, rec: &IterRecord) {
+        if let Some(b) = &self.bar {
+            b.set_position(rec.iteration as u64);
+        }
+    }
+    fn phase_done(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}
+
+fn parse(a: &RelightArgs) -> Result<Options, String> {
+    let subdivide = match a.subdivide.as_str() {
+        "lightmap" => Subdivide::Lightmap,
+        "off" => Subdivide::Off,
+        s => match s.parse::<f32>() {
+            Ok(m) if m.is_finite() && m > 0.0 => Subdivide::Meters(m),
+            _ => return Err(format!("--subdivide {s:?}: expected lightmap, off or a positive length in meters")),
+        },
+    };
+    let init = match a.init.as_str() {
+        "auto" => Init::Auto,
+        "input" => Init::Input,
+        s => match s.strip_prefix("grid:").and_then(|n| n.parse::<usize>().ok()) {
+            Some(n) if (1..=64).contains(&n) => Init::Grid(n),
+            _ => return Err(format!("--init {s:?}: expected auto, input or grid:N with 1 <= N <= 64")),
+        },
+    };
+    let time_limit = match a.time_limit {
+        Some(t) if t.is_finite() && t > 0.0 => Some(Duration::from_secs_f64(t)),
+        Some(t) => return Err(format!("--time-limit {t}: expected a positive number of seconds")),
+        None => None,
+    };
+    Ok(Options {
+        input: a.input.clone(),
+        output: a.output.clone(),
+        subdivide,
+        max_vertices: a.max_vertices.max(3),
+        init,
+        scheme: a.scheme.clone(),
+        max_lights: a.max_lights.clamp(1, 256),
+        max_iterations: a.max_iterations,
+        time_limit,
+        backend: match a.backend.as_str() {
+            "wgpu" => BackendChoice::Wgpu,
+            "cpu" => BackendChoice::Cpu,
+            _ => BackendChoice::Auto,
+        },
+        seed: a.seed,
+    })
+}
+
+pub fn run(a: RelightArgs) -> Result<(), String> {
+    let opts = parse(&a)?;
+    let mut bars = Bars { quiet: a.quiet, bar: None };
+    let rep = pipeline::run(&opts, &mut bars).map_err(|e| e.to_string())?;
+    bars.phase_done();
+    if let Some(p) = &a.report {
+        report::write_json(&rep, p).map_err(|e| e.to_string())?;
+    }
+    if let Some(p) = &a.plot {
+        report::write_plot(&rep, p).map_err(|e| e.to_string())?;
+    }
+    println!("relit {} -> {}", rep.input, rep.output);
+    println!("  backend   {} ({})", rep.backend, rep.backend_reason);
+    if let Some(s) = &rep.subdivision {
+        println!("  subdivide {} -> {} vertices in {} rounds (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.rounds, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
+    }
+    println!(
+        "  target    {} vertices with a target, {} censored (lower bounds), {} without baked lighting",
+        rep.target.with_target, rep.target.censored, rep.target.no_coverage
+    );
+    println!("  lights    {} (pruned {}, merged {}); ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.ambient_note);
+    println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
+    let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
+    println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
+    println!("  rays      {} shadow rays, {} objective evaluations", rep.rays_traced, rep.evaluations);
+    Ok(())
+}
