@@ -1,13 +1,16 @@
 # q3gltf: Quake III maps to glTF 2.0.
 #
-#   make                 build, convert the bundled sample to out/sample.gltf
-#   make MAP=oa_dm1      fetch OpenArena (cached) and convert that map to out/oa_dm1.gltf
+#   make                 build, convert the bundled sample to out/sample.gltf, relight it to
+#                        out/sample.relit.gltf (+ .report.json, .curve.png)
+#   make MAP=oa_dm1      fetch OpenArena (cached), convert that map and relight it likewise
 #   make maps            convert every map of the game data to out/maps/*.glb (use -j)
 #   make test            the whole test suite (Rust and Python/Node checkers)
-#   make bench           conversion speed table (out/bench/convert.md) and `make -j2 maps` time
+#   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
+#                        relight of the sample and oa_dm1 (out/bench/relight.md)
 #   make sample          regenerate the bundled sample from samples/src (committed)
 #
-# Variables: MAP, GAME_DIR (defaults to the fetched OpenArena baseoa), CONVERT_FLAGS.
+# Variables: MAP, GAME_DIR (defaults to the fetched OpenArena baseoa), CONVERT_FLAGS,
+# RELIGHT_FLAGS.
 
 CARGO      ?= cargo
 BIN        := target/release/q3gltf
@@ -15,6 +18,7 @@ OUT        := out
 VENV       := .venv
 PYTHON     ?= python3
 CONVERT_FLAGS ?= --entity-lights
+RELIGHT_FLAGS ?=
 FETCH      := samples/fetch-openarena.sh
 SAMPLE_BSP := samples/sample/maps/sample.bsp
 
@@ -22,11 +26,13 @@ SAMPLE_BSP := samples/sample/maps/sample.bsp
 .DELETE_ON_ERROR:
 
 ifeq ($(MAP),)
-all: $(OUT)/sample.gltf
+all: $(OUT)/sample.relit.gltf
 else
+MAPNAME := $(notdir $(MAP:.bsp=))
 all: build
 	@mkdir -p $(OUT)
-	$(BIN) convert $(MAP) --game-dir "$$(if [ -n '$(GAME_DIR)' ]; then echo '$(GAME_DIR)'; else bash $(FETCH); fi)" $(CONVERT_FLAGS) -o $(OUT)/$(notdir $(MAP:.bsp=)).gltf
+	$(BIN) convert $(MAP) --game-dir "$$(if [ -n '$(GAME_DIR)' ]; then echo '$(GAME_DIR)'; else bash $(FETCH); fi)" $(CONVERT_FLAGS) -o $(OUT)/$(MAPNAME).gltf
+	$(BIN) relight $(OUT)/$(MAPNAME).gltf -o $(OUT)/$(MAPNAME).relit.gltf --report $(OUT)/$(MAPNAME).report.json --plot $(OUT)/$(MAPNAME).curve.png $(RELIGHT_FLAGS)
 endif
 
 build:
@@ -35,6 +41,9 @@ build:
 $(OUT)/sample.gltf: build
 	@mkdir -p $(OUT)
 	$(BIN) convert $(SAMPLE_BSP) $(CONVERT_FLAGS) -o $@
+
+$(OUT)/sample.relit.gltf: $(OUT)/sample.gltf
+	$(BIN) relight $< -o $@ --report $(OUT)/sample.report.json --plot $(OUT)/sample.curve.png $(RELIGHT_FLAGS)
 
 sample:
 	$(CARGO) run --release -p q3gltf-samples --bin make-sample -- samples/sample
@@ -79,6 +88,7 @@ bench: build data
 	n=$$(ls $(OUT)/maps/*.glb | wc -l); \
 	line="make -j2 maps: $$n maps in $$(awk "BEGIN{printf \"%.1f\", $$end - $$start}") s (2 jobs, includes start-up of each process)"; \
 	echo "$$line"; echo "$$line" >> $(OUT)/bench/convert.md
+	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
 
 clean:
 	rm -rf $(OUT)

@@ -156,9 +156,15 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(
         let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
         let saved = (fit.lights.clone(), fit.locked.clone(), fit.vis.clone());
         fit.add_light(Light { pos: best.1, rgb: best.2.map(|c| c.max(floor).max(1e-9)) }, false);
-        fit.fit_intensities();
+        let e0 = fit.fit_intensities();
+        let placed = (fit.lights.clone(), fit.vis.clone());
         fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
-        let e = fit.fit_intensities();
+        let mut e = fit.fit_intensities();
+        if !(e <= e0) {
+            // The short refinement made things worse (a light slid behind a wall): undo it.
+            (fit.lights, fit.vis) = placed;
+            e = e0;
+        }
         stats.errors.push(e);
         if err - e < min_gain {
             (fit.lights, fit.locked, fit.vis) = saved;

@@ -233,7 +233,7 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.004, 40_000, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.001, 40_000, deadline);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();

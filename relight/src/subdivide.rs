@@ -190,3 +190,41 @@ fn midpoint(mesh: &mut Mesh, a: u32, b: u32) -> u32 {
     mesh.weld.push(u32::MAX); // recomputed at the end of the round
     v
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::room;
+    use std::collections::HashMap;
+
+    fn area(m: &Mesh) -> f64 {
+        (0..m.triangles.len()).map(|t| m.triangle_area(t) as f64).sum()
+    }
+
+    /// Every edge (by welded ids) is used by exactly two triangles in a closed room: no
+    /// T-junction, no hole, no non-manifold edge; area is preserved; the bound holds.
+    #[test]
+    fn meters_bound_keeps_the_room_closed() {
+        let (mut m, _) = room(2);
+        let a0 = area(&m);
+        let mats = vec![];
+        let st = subdivide(&mut m, &mats, &[], Bound::Meters(0.3), 1_000_000);
+        assert!(!st.budget_reached && st.longest_edge <= 0.3, "{st:?}");
+        assert!((area(&m) - a0).abs() < 1e-4 * a0);
+        let mut uses: HashMap<(u32, u32), usize> = HashMap::new();
+        for tri in &m.triangles {
+            for k in 0..3 {
+                let (a, b) = (m.weld[tri[k] as usize], m.weld[tri[(k + 1) % 3] as usize]);
+                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+        assert!(uses.values().all(|&n| n == 2), "open or non-manifold edges after subdivision");
+    }
+
+    #[test]
+    fn budget_stops_refinement() {
+        let (mut m, _) = room(2);
+        let st = subdivide(&mut m, &[], &[], Bound::Meters(0.01), 2_000);
+        assert!(st.budget_reached && m.positions.len() <= 2_000);
+    }
+}

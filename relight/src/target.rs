@@ -5,7 +5,8 @@
 //! Per triangle `k` with area `A_k`, `n = m^2` quadrature points at the centroids of the
 //! `m x m` equal sub-triangles (so the quadrature weight is `A_k / n` each and every
 //! corner's shape function integrates to exactly `A_k / 3`); `m` follows the texel
-//! footprint: about four samples per lightmap texel. Each corner gets
+//! footprint: about four samples per lightmap texel, more (up to 16) where the albedo
+//! texture is finer. Each corner gets
 //!
 //! - `num_c  = sum A_k/n phi_i r_c`     over samples that are not censored (no channel of
 //!   the nearest texel at 255: q3map2 scales such texels down keeping their hue),
@@ -75,8 +76,9 @@ pub fn order(scene: &Scene, t: usize) -> u32 {
         0.5 * (p.x * q.y - p.y * q.x).abs() * tx.width as f32 * tx.height as f32
     };
     let lm = if mat.lighting == Lighting::Lightmap { texel_area(&mesh.uv1, mat.lightmap) } else { 0.0 };
-    let al = texel_area(&mesh.uv0, mat.albedo) / 16.0;
-    let want = (4.0 * lm.max(al)).max(1.0);
+    // Albedo detail adds samples, but at most 16 per triangle beyond the lightmap's need.
+    let al = (texel_area(&mesh.uv0, mat.albedo) / 16.0).min(16.0);
+    let want = (4.0 * lm).max(al).max(1.0);
     let m = want.sqrt().ceil();
     if m.is_finite() { (m as u32).clamp(1, MAX_ORDER) } else { MAX_ORDER }
 }

@@ -1,0 +1,171 @@
+//! End-to-end tests of `q3gltf relight` on real inputs: the bundled sample (convert, then
+//! relight, compared with the sample's known light entities), re-runs on its own output
+//! (`--init input`, locked lights), and a real OpenArena map.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+
+fn bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_q3gltf"))
+}
+
+fn run(args: &[&str]) -> String {
+    let out = Command::new(bin()).args(args).output().expect("run q3gltf");
+    assert!(out.status.success(), "q3gltf {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("q3gltf-relight-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn report(p: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+}
+
+fn convert_sample(dir: &Path) -> PathBuf {
+    let out = dir.join("sample.gltf");
+    let bsp = common::repo().join("samples/sample/maps/sample.bsp");
+    run(&["convert", bsp.to_str().unwrap(), "-o", out.to_str().unwrap(), "-q"]);
+    out
+}
+
+/// The sample's light entities in glTF meters: (x, y, z)q3 -> (x, z, -y) * 0.0254, and
+/// q3map2's `light` key as candela (163 * light at the default scale and overbright).
+fn sample_truth() -> Vec<([f64; 3], f64)> {
+    q3gltf_samples::LIGHTS.iter().map(|l| ([l.origin[0] * 0.0254, l.origin[2] * 0.0254, -l.origin[1] * 0.0254], 163.0 * l.light)).collect()
+}
+
+fn lights_of(r: &Value) -> Vec<([f64; 3], f64, String)> {
+    r["lights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| {
+            let p: Vec<f64> = l["position_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+            ([p[0], p[1], p[2]], l["intensity_cd"].as_f64().unwrap(), l["name"].as_str().unwrap().to_string())
+        })
+        .collect()
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+#[test]
+fn sample_convert_then_relight_recovers_the_light_entities() {
+    let dir = tmp("sample");
+    let gltf = convert_sample(&dir);
+    let out = dir.join("sample.relit.gltf");
+    let rep = dir.join("report.json");
+    let plot = dir.join("curve.png");
+    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "--plot", plot.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    let found = lights_of(&r);
+    // Scene diagonal of the sample, for the tolerance.
+    let doc = gltf::Gltf::open(&out).expect("output parses as glTF");
+    let lights: Vec<_> = doc.lights().map(|l| l.collect::<Vec<_>>()).unwrap_or_default();
+    assert_eq!(lights.len(), found.len(), "every reported light is in the file");
+    assert_eq!(found.len(), 3, "as few lights as the scene needs: {found:?}");
+    for (p, cd) in sample_truth() {
+        let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).unwrap();
+        assert!(dist(best.0, p) < 0.25, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
+        assert!((best.1 / cd - 1.0).abs() < 0.08, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
+    }
+    let err = r["rel_error_final"].as_f64().unwrap();
+    // The sample's lightmaps have 16-unit texels, hard shadows filtered by them, and q3map2's
+    // max(16, d) clamp near lights: the point-light model cannot follow all of that.
+    assert!(err < 0.2, "relative error {err}");
+    assert!(r["iterations"].as_array().unwrap().len() > 3, "iterations are reported");
+    let png = image::open(&plot).expect("the plot is a PNG");
+    assert!(png.width() >= 600);
+
+    // Re-run on its own output with the lights as the start: not worse.
+    let out2 = dir.join("sample.relit2.glb");
+    let rep2 = dir.join("report2.json");
+    run(&["relight", out.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--init", "input", "--backend", "cpu", "--report", rep2.to_str().unwrap(), "-q"]);
+    let r2 = report(&rep2);
+    let err2 = r2["rel_error_final"].as_f64().unwrap();
+    assert!(err2 <= err + 1e-3, "re-run made the error worse: {err} -> {err2}");
+    assert_eq!(lights_of(&r2).len(), 3);
+}
+
+#[test]
+fn locked_light_does_not_move_and_input_is_never_overwritten() {
+    let dir = tmp("locked");
+    let gltf = convert_sample(&dir);
+    let out = dir.join("a.gltf");
+    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--scheme", "fast", "-q"]);
+    // Lock light_000 and displace it by 0.5 m, as a user would in Blender.
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    let node = nodes.iter_mut().find(|n| n["name"] == "light_000").expect("light_000 node");
+    let mut t: Vec<f64> = node["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    t[1] -= 0.5;
+    node["translation"] = serde_json::json!(t);
+    node["extras"] = serde_json::json!({ "locked": true });
+    let edited = dir.join("edited.gltf");
+    std::fs::write(&edited, serde_json::to_vec(&json).unwrap()).unwrap();
+    let out2 = dir.join("b.gltf");
+    let rep = dir.join("r.json");
+    run(&["relight", edited.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--init", "input", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    let locked: Vec<_> = r["lights"].as_array().unwrap().iter().filter(|l| l["locked"] == true).collect();
+    assert_eq!(locked.len(), 1);
+    let p: Vec<f64> = locked[0]["position_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(dist([p[0], p[1], p[2]], [t[0], t[1], t[2]]) < 1e-5, "locked light moved: {p:?} vs {t:?}");
+
+    // Refuses to overwrite its input.
+    let st = Command::new(bin()).args(["relight", edited.to_str().unwrap(), "-o", edited.to_str().unwrap(), "-q"]).output().unwrap();
+    assert!(!st.status.success());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("overwrite"));
+}
+
+#[test]
+fn invalid_inputs_give_clear_errors() {
+    let dir = tmp("bad");
+    let junk = dir.join("junk.gltf");
+    std::fs::write(&junk, b"{ not json").unwrap();
+    let st = Command::new(bin()).args(["relight", junk.to_str().unwrap(), "-o", dir.join("o.gltf").to_str().unwrap(), "-q"]).output().unwrap();
+    assert!(!st.status.success());
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(err.contains("junk.gltf") && !err.contains("panicked"), "{err}");
+    // A scene without baked lighting: nothing to fit.
+    let gltf = convert_sample(&dir);
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    for m in json["materials"].as_array_mut().unwrap() {
+        m.as_object_mut().unwrap().remove("occlusionTexture");
+        m["extras"]["q3_lighting"] = "none".into();
+    }
+    let unlit = dir.join("unlit.gltf");
+    std::fs::write(&unlit, serde_json::to_vec(&json).unwrap()).unwrap();
+    let st = Command::new(bin()).args(["relight", unlit.to_str().unwrap(), "-o", dir.join("o.gltf").to_str().unwrap(), "-q"]).output().unwrap();
+    assert!(!st.status.success());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("no surface carries baked lighting"));
+}
+
+#[test]
+fn real_map_end_to_end_on_the_wgpu_backend() {
+    let dir = tmp("oa_dm1");
+    let out = dir.join("oa_dm1.glb");
+    run(&["convert", "oa_dm1", "--game-dir", common::baseoa().to_str().unwrap(), "-o", out.to_str().unwrap(), "-q"]);
+    let relit = dir.join("oa_dm1.relit.glb");
+    let rep = dir.join("r.json");
+    // CI has no GPU: this runs on Mesa's software Vulkan. Small budget: a 3x3 grid start.
+    run(&[
+        "relight", out.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--backend", "wgpu", "--subdivide", "off", "--init", "grid:3",
+        "--scheme", "fast", "--max-iterations", "8", "--report", rep.to_str().unwrap(), "-q",
+    ]);
+    let r = report(&rep);
+    assert!(r["backend"].as_str().unwrap().starts_with("wgpu"), "{}", r["backend"]);
+    let (e0, e1) = (r["rel_error_initial"].as_f64().unwrap(), r["rel_error_final"].as_f64().unwrap());
+    assert!(e1 < e0, "the error did not go down: {e0} -> {e1}");
+    assert!(gltf::Gltf::open(&relit).is_ok());
+}
