@@ -51,7 +51,8 @@ pub struct RelightArgs {
     /// Plot relative error against time as a PNG.
     #[arg(long, value_name = "curve.png")]
     pub plot: Option<PathBuf>,
-    /// Seed for the random choices (subsampling is deterministic; kept for reproducibility).
+    /// Chooses which vertices `--init auto` samples (every k-th vertex from offset seed % k);
+    /// the same seed gives the same result.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// No progress display.
@@ -61,35 +62,35 @@ pub struct RelightArgs {
 
 struct Bars {
     quiet: bool,
-    bar: Option<indicatif::ProgressBar>,
+    bar: std::cell::RefCell<Option<indicatif::ProgressBar>>,
 }
 
 impl Progress for Bars {
-    fn stage(&mut self, name: &str) {
-        if let Some(b) = self.bar.take() {
+    fn stage(&self, name: &str) {
+        if let Some(b) = self.bar.borrow_mut().take() {
             b.finish_and_clear();
         }
         if !self.quiet {
             let b = indicatif::ProgressBar::new_spinner();
             b.set_message(name.to_string());
             b.enable_steady_tick(Duration::from_millis(120));
-            self.bar = Some(b);
+            *self.bar.borrow_mut() = Some(b);
         }
     }
-    fn phase(&mut self, name: &str, max_iterations: usize) {
+    fn phase(&self, name: &str, max_iterations: usize) {
         self.stage(name);
-        if let Some(b) = &self.bar {
+        if let Some(b) = &*self.bar.borrow() {
             b.set_length(max_iterations as u64);
             b.set_style(indicatif::ProgressStyle::with_template("{msg:12} [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
         }
     }
-    fn iteration(&mut self, rec: &IterRecord) {
-        if let Some(b) = &self.bar {
+    fn iteration(&self, rec: &IterRecord) {
+        if let Some(b) = &*self.bar.borrow() {
             b.set_position(rec.iteration as u64);
         }
     }
-    fn phase_done(&mut self) {
-        if let Some(b) = self.bar.take() {
+    fn phase_done(&self) {
+        if let Some(b) = self.bar.borrow_mut().take() {
             b.finish_and_clear();
         }
     }
@@ -138,8 +139,8 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
 
 pub fn run(a: RelightArgs) -> Result<(), String> {
     let opts = parse(&a)?;
-    let mut bars = Bars { quiet: a.quiet, bar: None };
-    let rep = pipeline::run(&opts, &mut bars).map_err(|e| e.to_string())?;
+    let bars = Bars { quiet: a.quiet, bar: Default::default() };
+    let rep = pipeline::run(&opts, &bars).map_err(|e| e.to_string())?;
     bars.phase_done();
     if let Some(p) = &a.report {
         report::write_json(&rep, p).map_err(|e| e.to_string())?;

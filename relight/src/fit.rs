@@ -174,6 +174,18 @@ impl<'a> Fitter<'a> {
         }
     }
 
+    /// Re-traces the lights that moved, without evaluating the objective.
+    pub fn refresh_visibility(&mut self) {
+        if self.failure.is_some() {
+            return;
+        }
+        let n = self.pb.len();
+        let backend = &mut *self.backend;
+        if let Err(e) = self.vis.update(&self.lights, self.retrace_tol, n, &mut |p| backend.trace(p)) {
+            self.failure = Some(e);
+        }
+    }
+
     /// Like `eval_lights` but with the visibility cache as it is (no re-trace).
     pub fn eval_frozen(&mut self, lights: &[Light], ambient: Option<[f32; 3]>) -> Eval {
         if self.failure.is_some() || self.vis.bits.len() != lights.len() {
@@ -339,7 +351,10 @@ impl<'a> Fitter<'a> {
     /// of the ambient term when enabled) for the current positions, on the CPU. Locked lights
     /// keep their values. Returns the new relative error.
     pub fn fit_intensities(&mut self) -> f64 {
-        let _ = self.eval(); // visibility up to date
+        self.refresh_visibility();
+        if self.failure.is_some() {
+            return f64::NAN;
+        }
         let k = self.lights.len();
         let amb = self.ambient.is_some();
         let cols = k + amb as usize;

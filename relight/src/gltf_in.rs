@@ -56,9 +56,8 @@ pub fn read(path: &Path) -> Result<Scene> {
 
     let mut textures = Vec::new();
     let mut tex_of_image = Vec::new();
-    for (i, img) in images.iter().enumerate() {
+    for img in &images {
         tex_of_image.push(textures.len());
-        let _ = i;
         textures.push(Texture {
             width: img.width,
             height: img.height,

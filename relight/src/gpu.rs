@@ -313,7 +313,6 @@ impl GpuBackend {
                 ev.grad_ambient[c] += t[2 + c] as f64;
             }
         }
-        let _ = vis;
         Ok(ev_with_error(ev, num, self.norm2))
     }
 }

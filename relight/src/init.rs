@@ -77,8 +77,8 @@ pub struct AutoStats {
 }
 
 /// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
-pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], max_lights: usize, min_gain: f64, sample: usize, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
-    let sub = pb.subsample(sample);
+pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
+    let sub = pb.subsample(sample, seed);
     let diag = (hi - lo).length().max(1e-3);
     let mut backend = Cpu { pb: &sub, bvh };
     let mut fit = Fitter::new(&sub, bvh, &mut backend, lo, hi);

@@ -171,7 +171,7 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Val
         }
     }
     let mut new_roots = Vec::new();
-    for (k, l) in lights.iter().enumerate() {
+    for l in lights {
         let index = new_lights.len();
         new_lights.push(light_json(l));
         let attach = json!({ "KHR_lights_punctual": { "light": index } });
@@ -196,7 +196,6 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Val
                 }
             }
             _ => {
-                let _ = k;
                 new_roots.push(nodes.len());
                 nodes.push(json!({
                     "name": l.name,

@@ -25,7 +25,7 @@
 
 use std::f64::consts::PI;
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::scene::Mesh;
@@ -58,20 +58,28 @@ impl Problem {
         let mut p = Problem { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), ..Default::default() };
         for v in 0..mesh.positions.len() {
             let has = (0..3).any(|c| tg.weight[v][c] > 0.0 || tg.lower[v][c] > 0.0);
-            if !has || !(tg.area[v] > 0.0) {
-                continue;
+            if has && tg.area[v] > 0.0 {
+                p.push(v as u32, mesh.positions[v], mesh.normals[v], tg.albedo[v], tg.value[v], tg.weight[v], tg.lower[v], tg.area[v]);
             }
-            p.vertex.push(v as u32);
-            p.pos.push(mesh.positions[v]);
-            p.normal.push(mesh.normals[v]);
-            p.albedo.push(tg.albedo[v]);
-            p.target.push(tg.value[v]);
-            p.weight.push(tg.weight[v]);
-            p.lower.push(tg.lower[v]);
-            p.area.push(tg.area[v]);
         }
-        p.norm2 = (0..p.len()).map(|i| (0..3).map(|c| p.area[i] as f64 * p.weight[i][c] as f64 * (p.target[i][c] as f64).powi(2)).sum::<f64>()).sum();
+        p.set_norm2();
         p
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn push(&mut self, v: u32, pos: Vec3, normal: Vec3, albedo: [f32; 3], target: [f32; 3], weight: [f32; 3], lower: [f32; 3], area: f32) {
+        self.vertex.push(v);
+        self.pos.push(pos);
+        self.normal.push(normal);
+        self.albedo.push(albedo);
+        self.target.push(target);
+        self.weight.push(weight);
+        self.lower.push(lower);
+        self.area.push(area);
+    }
+
+    fn set_norm2(&mut self) {
+        self.norm2 = (0..self.len()).map(|i| (0..3).map(|c| self.area[i] as f64 * self.weight[i][c] as f64 * (self.target[i][c] as f64).powi(2)).sum::<f64>()).sum();
     }
 
     pub fn len(&self) -> usize {
@@ -81,24 +89,18 @@ impl Problem {
         self.pos.is_empty()
     }
 
-    /// A sub-problem of every `stride`-th vertex (areas scaled so sums stay comparable).
-    pub fn subsample(&self, max: usize) -> Problem {
+    /// A sub-problem of at most about `max` vertices: every `stride`-th one, starting at
+    /// `seed % stride` (areas scaled so sums stay comparable).
+    pub fn subsample(&self, max: usize, seed: u64) -> Problem {
         let stride = self.len().div_ceil(max.max(1)).max(1);
         if stride == 1 {
             return self.clone();
         }
         let mut p = Problem { eps: self.eps, ray_offset: self.ray_offset, ..Default::default() };
-        for i in (0..self.len()).step_by(stride) {
-            p.vertex.push(self.vertex[i]);
-            p.pos.push(self.pos[i]);
-            p.normal.push(self.normal[i]);
-            p.albedo.push(self.albedo[i]);
-            p.target.push(self.target[i]);
-            p.weight.push(self.weight[i]);
-            p.lower.push(self.lower[i]);
-            p.area.push(self.area[i] * stride as f32);
+        for i in ((seed % stride as u64) as usize..self.len()).step_by(stride) {
+            p.push(self.vertex[i], self.pos[i], self.normal[i], self.albedo[i], self.target[i], self.weight[i], self.lower[i], self.area[i] * stride as f32);
         }
-        p.norm2 = (0..p.len()).map(|i| (0..3).map(|c| p.area[i] as f64 * p.weight[i][c] as f64 * (p.target[i][c] as f64).powi(2)).sum::<f64>()).sum();
+        p.set_norm2();
         p
     }
 }
@@ -219,7 +221,7 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32;
                         gr[3 + c] += rho_a[c] * g as f64;
                         s += rho_a[c] * l.rgb[c] as f64;
                     }
-                    let dg = DVec3::from(dg.as_dvec3()) * s;
+                    let dg = dg.as_dvec3() * s;
                     gr[0] += dg.x;
                     gr[1] += dg.y;
                     gr[2] += dg.z;

@@ -78,12 +78,13 @@ impl Default for Options {
     }
 }
 
-/// What the command line shows while the work goes on.
+/// What the command line shows while the work goes on. Methods take `&self` so the
+/// optimiser's per-iteration callback can hold the display while stages are reported.
 pub trait Progress {
-    fn stage(&mut self, _name: &str) {}
-    fn phase(&mut self, _name: &str, _max_iterations: usize) {}
-    fn iteration(&mut self, _rec: &IterRecord) {}
-    fn phase_done(&mut self) {}
+    fn stage(&self, _name: &str) {}
+    fn phase(&self, _name: &str, _max_iterations: usize) {}
+    fn iteration(&self, _rec: &IterRecord) {}
+    fn phase_done(&self) {}
 }
 pub struct Silent;
 impl Progress for Silent {}
@@ -162,11 +163,11 @@ pub fn choose_backend<'a>(choice: BackendChoice, pb: &'a Problem, bvh: &'a Bvh) 
     }
 }
 
-pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
+pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let t_all = Instant::now();
     let deadline = opts.time_limit.map(|d| t_all + d);
     let mut st = Stages { t: Instant::now(), list: Vec::new() };
-    if lights_out_same(opts) {
+    if q3gltf_convert::output::same_file(&opts.output, &opts.input) {
         return Err(Error::Usage(format!("{}: the output would overwrite the input", opts.output.display())));
     }
     let phases = schemes::phases(&opts.scheme).ok_or_else(|| {
@@ -233,7 +234,7 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.001, 40_000, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
@@ -252,8 +253,7 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
     let rel_error_initial = if matches!(opts.init, Init::Input) { fit.eval().rel_error } else { fit.fit_intensities() };
     st.done("start");
 
-    let history_cb: Box<dyn FnMut(&IterRecord)> = Box::new(|_r: &IterRecord| {});
-    fit.on_iter = Some(history_cb);
+    fit.on_iter = Some(Box::new(|r: &IterRecord| progress.iteration(r)));
     for (k, mut phase) in phases.into_iter().enumerate() {
         if fit.out_of_time() {
             break;
@@ -262,11 +262,7 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
             phase.max_iterations = phase.max_iterations.min(m);
         }
         progress.phase(&format!("phase {}", k + 1), phase.max_iterations);
-        // Progress per iteration goes through the fitter's history; show it after the phase.
         fit.run_phase(&format!("{} phase {}", opts.scheme, k + 1), phase);
-        for r in fit.history.iter().filter(|r| r.phase == fit.phase_index - 1) {
-            progress.iteration(r);
-        }
         progress.phase_done();
     }
     st.done("optimise");
@@ -299,6 +295,9 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
         fit.run_phase("polish", polish);
     }
     let final_eval = fit.eval();
+    if let Some(e) = fit.failure.take() {
+        return Err(e);
+    }
     st.done("prune");
 
     // Energy share of each light (area-weighted model radiance).
@@ -379,10 +378,6 @@ pub fn run(opts: &Options, progress: &mut dyn Progress) -> Result<Report> {
         total_time_s: t_all.elapsed().as_secs_f64(),
         skipped_primitives: scene.skipped,
     })
-}
-
-fn lights_out_same(opts: &Options) -> bool {
-    q3gltf_convert::output::same_file(&opts.output, &opts.input)
 }
 
 fn energy_shares(pb: &Problem, fit: &Fitter) -> Vec<f64> {

@@ -145,8 +145,3 @@ pub struct Scene {
     pub skipped: Vec<String>,
 }
 
-impl Scene {
-    pub fn lighting_of_vertex(&self, v: usize) -> Lighting {
-        self.materials[self.mesh.v_material[v] as usize].lighting
-    }
-}
