@@ -76,13 +76,14 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     assert_eq!(found.len(), 3, "as few lights as the scene needs: {found:?}");
     for (p, cd) in sample_truth() {
         let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).unwrap();
-        assert!(dist(best.0, p) < 0.25, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
-        assert!((best.1 / cd - 1.0).abs() < 0.08, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
+        assert!(dist(best.0, p) < 0.12, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
+        assert!((best.1 / cd - 1.0).abs() < 0.03, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
     }
     let err = r["rel_error_final"].as_f64().unwrap();
-    // The sample's lightmaps have 16-unit texels, hard shadows filtered by them, and q3map2's
-    // max(16, d) clamp near lights: the point-light model cannot follow all of that.
-    assert!(err < 0.2, "relative error {err}");
+    // Measured 0.069 with the true lights as well as with the recovered ones: what is left
+    // is at shadow boundaries, which 16-unit luxels point-sampled and filtered bilinearly
+    // cannot resolve (the 5% is not reached; see the notes).
+    assert!(err < 0.08, "relative error {err}");
     assert!(r["iterations"].as_array().unwrap().len() > 3, "iterations are reported");
     let png = image::open(&plot).expect("the plot is a PNG");
     assert!(png.width() >= 600);
@@ -168,4 +169,41 @@ fn real_map_end_to_end_on_the_wgpu_backend() {
     let (e0, e1) = (r["rel_error_initial"].as_f64().unwrap(), r["rel_error_final"].as_f64().unwrap());
     assert!(e1 < e0, "the error did not go down: {e0} -> {e1}");
     assert!(gltf::Gltf::open(&relit).is_ok());
+}
+
+/// The target projection on wgpu (`shaders/target.wgsl`) against the CPU reference, on real
+/// inputs: the converted sample at lightmap resolution and oa_dm1 as converted. Per vertex
+/// and channel, value, weight, lower bound, albedo and area agree within 1e-4 relative to
+/// the channel's largest value in the scene; a quadrature point that lands exactly on a
+/// texel edge may round to the other texel on the GPU (fused multiply-adds), so a few
+/// vertices in a million are allowed up to 1e-2.
+#[test]
+fn target_projection_wgpu_agrees_with_cpu_on_real_maps() {
+    use q3gltf_relight::{gltf_in, gpu, subdivide, target};
+    let dir = tmp("target-gpu");
+    let sample = convert_sample(&dir);
+    let map = dir.join("oa_dm1.glb");
+    run(&["convert", "oa_dm1", "--game-dir", common::baseoa().to_str().unwrap(), "-o", map.to_str().unwrap(), "-q"]);
+    let ctx = gpu::Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)");
+    for (path, subdivide) in [(&sample, true), (&map, false)] {
+        let mut scene = gltf_in::read(path).unwrap();
+        if subdivide {
+            subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, subdivide::Bound::Texels(1.0), 2_000_000);
+        }
+        let (c, cs) = target::project_cpu(&scene);
+        let (sums, samples) = ctx.target_sums(&scene).unwrap();
+        let (g, gs) = target::gather(&scene, &sums, samples);
+        assert_eq!(cs.samples, gs.samples, "{}: sample counts", path.display());
+        assert_eq!(cs.with_target, gs.with_target, "{}: vertices with a target", path.display());
+        let fields: [(&str, &Vec<[f32; 3]>, &Vec<[f32; 3]>); 4] = [("value", &c.value, &g.value), ("weight", &c.weight, &g.weight), ("lower", &c.lower, &g.lower), ("albedo", &c.albedo, &g.albedo)];
+        for (name, a, b) in fields {
+            let scale = a.iter().flat_map(|v| v.iter()).fold(0.0f32, |m, &x| m.max(x.abs())).max(1e-12);
+            let diffs: Vec<f32> = a.iter().zip(b).map(|(x, y)| (0..3).map(|k| (x[k] - y[k]).abs() / scale).fold(0.0, f32::max)).collect();
+            let over = diffs.iter().filter(|&&d| d > 1e-4).count();
+            let worst = diffs.iter().copied().fold(0.0, f32::max);
+            assert!(over * 100_000 <= diffs.len() && worst < 1e-2, "{} {name}: {over} of {} vertices differ by more than 1e-4 (worst {worst:e})", path.display(), diffs.len());
+        }
+        let area_diff = c.area.iter().zip(&g.area).map(|(x, y)| (x - y).abs() / x.abs().max(1e-12)).fold(0.0f32, f32::max);
+        assert!(area_diff < 1e-4, "{}: vertex areas differ by {area_diff:e}", path.display());
+    }
 }

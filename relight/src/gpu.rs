@@ -11,6 +11,8 @@ use crate::backend::Backend;
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
 use crate::model::{Eval, Light, Problem};
+use crate::scene::{Lighting, Scene, Wrap};
+use crate::target::{self, CORNER_FLOATS};
 use crate::visibility::Visibility;
 
 const WG: u32 = 64;
@@ -25,10 +27,13 @@ pub struct AdapterInfo {
     pub software: bool,
 }
 
+/// A wgpu device with every relight pipeline built on it: made once per run and used
+/// first by the target projection ([`Context::target_sums`]), then by [`GpuBackend`].
 pub struct Context {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: AdapterInfo,
+    pipes: Pipelines,
 }
 
 fn adapter() -> Result<wgpu::Adapter> {
@@ -59,8 +64,171 @@ impl Context {
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("request_device: {e}")))?;
-        Ok(Context { device, queue, info })
+        let pipes = Pipelines::new(&device);
+        Ok(Context { device, queue, info, pipes })
     }
+
+    /// The largest storage buffer binding the device accepts, bytes.
+    pub fn max_binding(&self) -> usize {
+        self.device.limits().max_storage_buffer_binding_size as usize
+    }
+
+    /// Copies `size` bytes of `src` to the CPU after submitting `encoder`.
+    fn read_back(&self, src: &wgpu::Buffer, size: u64, mut encoder: wgpu::CommandEncoder) -> Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor { label: Some("readback"), size, usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
+        encoder.copy_buffer_to_buffer(src, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: None }).map_err(|e| Error::Gpu(format!("poll: {e}")))?;
+        rx.recv().map_err(|e| Error::Gpu(e.to_string()))?.map_err(|e| Error::Gpu(format!("map: {e}")))?;
+        let data = slice.get_mapped_range().map_err(|e| Error::Gpu(format!("mapped range: {e}")))?.to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+
+    /// The per-triangle corner sums of the target projection (`shaders/target.wgsl`; CPU
+    /// reference [`crate::target::all_triangle_sums_cpu`], same layout and sample count).
+    /// Textures are uploaded once as packed RGBA8 words; triangles go in chunks that fit
+    /// the adapter's storage binding limit.
+    pub fn target_sums(&self, scene: &Scene) -> Result<(Vec<f32>, u64)> {
+        let mesh = &scene.mesh;
+        let max = self.max_binding();
+        let mut infos = Vec::with_capacity(scene.textures.len());
+        let mut words: Vec<u32> = Vec::new();
+        for t in &scene.textures {
+            let wrap = |w: Wrap| match w {
+                Wrap::Repeat => 0u32,
+                Wrap::Clamp => 1,
+                Wrap::Mirror => 2,
+            };
+            infos.push(GpuTexInfo { offset: words.len() as u32, width: t.width, height: t.height, wrap: wrap(t.wrap_s) | wrap(t.wrap_t) << 8 });
+            if (words.len() + t.rgba8.len() / 4) * 4 > max {
+                return Err(Error::Gpu(format!("the textures exceed the adapter's storage binding limit of {max} bytes")));
+            }
+            words.extend(t.rgba8.chunks_exact(4).map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])));
+        }
+        let mats: Vec<GpuMaterial> = scene
+            .materials
+            .iter()
+            .map(|m| GpuMaterial {
+                albedo_factor: m.albedo_factor,
+                albedo_tex: m.albedo.map_or(-1, |i| i as i32),
+                lightmap_tex: if m.lighting == Lighting::Lightmap { m.lightmap.map_or(-1, |i| i as i32) } else { -1 },
+                scale: m.decode(1.0),
+                gamma: m.lightmap_gamma,
+            })
+            .collect();
+        let d = &self.device;
+        let mats_b = storage(d, "materials", bytemuck::cast_slice(&mats));
+        let infos_b = storage(d, "textures", bytemuck::cast_slice(&infos));
+        let texels_b = storage(d, "texels", bytemuck::cast_slice(&words));
+        let nt = mesh.triangles.len();
+        let per_tri = 3 * CORNER_FLOATS * 4;
+        let chunk = (max / per_tri).min(max / std::mem::size_of::<GpuTriangle>()).clamp(1, 1 << 20);
+        let mut sums = Vec::with_capacity(nt * 3 * CORNER_FLOATS);
+        let mut samples = 0u64;
+        for start in (0..nt).step_by(chunk) {
+            let end = (start + chunk).min(nt);
+            let tris: Vec<GpuTriangle> = (start..end)
+                .map(|t| {
+                    let tri = mesh.triangles[t].map(|i| i as usize);
+                    let area = mesh.triangle_area(t);
+                    let order = if area > 0.0 && area.is_finite() { target::order(scene, t) } else { 0 };
+                    samples += (order * order) as u64;
+                    GpuTriangle {
+                        uv0: tri.map(|v| mesh.uv0[v].to_array()),
+                        uv1: tri.map(|v| mesh.uv1[v].to_array()),
+                        area,
+                        order,
+                        material: mesh.tri_material[t],
+                        pad: 0,
+                    }
+                })
+                .collect();
+            let n = (end - start) as u32;
+            let size = (n as usize * per_tri) as u64;
+            let out = d.create_buffer(&wgpu::BufferDescriptor { label: Some("target sums"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
+            let tris_b = storage(d, "target triangles", bytemuck::cast_slice(&tris));
+            let groups = n.div_ceil(WG).max(1);
+            let gx = groups.min(MAX_GROUPS);
+            let gy = groups.div_ceil(gx);
+            let params = TargetParams { triangles: n, row: gx * WG, pad: [0; 2] };
+            let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("target params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
+            let layout = self.pipes.target.get_bind_group_layout(0);
+            let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("target"),
+                layout: &layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: tris_b.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: mats_b.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: infos_b.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: texels_b.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: out.as_entire_binding() },
+                ],
+            });
+            let mut enc = d.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.pipes.target);
+                pass.set_bind_group(0, &bg, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            let data = self.read_back(&out, size, enc)?;
+            sums.extend_from_slice(bytemuck::cast_slice::<u8, f32>(&data));
+        }
+        Ok((sums, samples))
+    }
+}
+
+/// Bytes the textures take on the device (see [`Context::target_sums`]).
+pub fn texture_bytes(scene: &Scene) -> usize {
+    scene.textures.iter().map(|t| t.rgba8.len()).sum()
+}
+
+/// `TriIn` of `shaders/target.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuTriangle {
+    uv0: [[f32; 2]; 3],
+    uv1: [[f32; 2]; 3],
+    area: f32,
+    order: u32,
+    material: u32,
+    pad: u32,
+}
+
+/// `TexInfo` of `shaders/target.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuTexInfo {
+    offset: u32,
+    width: u32,
+    height: u32,
+    wrap: u32,
+}
+
+/// `MaterialIn` of `shaders/target.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuMaterial {
+    albedo_factor: [f32; 4],
+    albedo_tex: i32,
+    lightmap_tex: i32,
+    scale: f32,
+    gamma: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TargetParams {
+    triangles: u32,
+    row: u32,
+    pad: [u32; 2],
 }
 
 /// The layout of `Vertex` in `shaders/problem.wgsl`.
@@ -99,6 +267,7 @@ struct ForwardParams {
 }
 
 struct Pipelines {
+    target: wgpu::ComputePipeline,
     trace: wgpu::ComputePipeline,
     forward: wgpu::ComputePipeline,
 }
@@ -119,6 +288,7 @@ impl Pipelines {
             })
         };
         Pipelines {
+            target: make("target", include_str!("../../shaders/target.wgsl").to_string()),
             trace: make("trace", format!("{problem}\n{bvh}\n{}", include_str!("../../shaders/trace.wgsl"))),
             forward: make("forward", format!("{problem}\n{}", include_str!("../../shaders/forward.wgsl"))),
         }
@@ -127,7 +297,6 @@ impl Pipelines {
 
 pub struct GpuBackend {
     ctx: Context,
-    pipes: Pipelines,
     n: u32,
     words: u32,
     eps: f32,
@@ -150,9 +319,8 @@ fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
 }
 
 impl GpuBackend {
-    pub fn new(pb: &Problem, bvh: &Bvh) -> Result<GpuBackend> {
-        let ctx = Context::new()?;
-        let pipes = Pipelines::new(&ctx.device);
+    /// Uploads the problem and the BVH to `ctx`'s device.
+    pub fn new(ctx: Context, pb: &Problem, bvh: &Bvh) -> Result<GpuBackend> {
         let verts: Vec<GpuVertex> = (0..pb.len())
             .map(|i| GpuVertex {
                 pos: pb.pos[i].to_array(),
@@ -165,7 +333,7 @@ impl GpuBackend {
                 lower: [pb.lower[i][0], pb.lower[i][1], pb.lower[i][2], 0.0],
             })
             .collect();
-        let max = ctx.device.limits().max_storage_buffer_binding_size as usize;
+        let max = ctx.max_binding();
         let vb: &[u8] = bytemuck::cast_slice(&verts);
         if vb.len() > max || bvh.tris.len() * 48 > max {
             return Err(Error::Gpu(format!("the problem ({} vertices, {} triangles) exceeds the adapter's storage binding limit of {max} bytes", pb.len(), bvh.tris.len())));
@@ -187,24 +355,7 @@ impl GpuBackend {
             vis_capacity: 0,
             uploaded: Vec::new(),
             ctx,
-            pipes,
         })
-    }
-
-    fn read_back(&self, src: &wgpu::Buffer, size: u64, mut encoder: wgpu::CommandEncoder) -> Result<Vec<u8>> {
-        let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor { label: Some("readback"), size, usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false });
-        encoder.copy_buffer_to_buffer(src, 0, &staging, 0, size);
-        self.ctx.queue.submit([encoder.finish()]);
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.ctx.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: None }).map_err(|e| Error::Gpu(format!("poll: {e}")))?;
-        rx.recv().map_err(|e| Error::Gpu(e.to_string()))?.map_err(|e| Error::Gpu(format!("map: {e}")))?;
-        let data = slice.get_mapped_range().map_err(|e| Error::Gpu(format!("mapped range: {e}")))?.to_vec();
-        staging.unmap();
-        Ok(data)
     }
 
     fn try_trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
@@ -219,7 +370,7 @@ impl GpuBackend {
             // wgpu zero-initialises new buffers: every bit starts cleared.
             let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.ray_offset };
             let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("trace params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
-            let layout = self.pipes.trace.get_bind_group_layout(0);
+            let layout = self.ctx.pipes.trace.get_bind_group_layout(0);
             let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("trace"),
                 layout: &layout,
@@ -235,11 +386,11 @@ impl GpuBackend {
             let mut enc = d.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.pipes.trace);
+                pass.set_pipeline(&self.ctx.pipes.trace);
                 pass.set_bind_group(0, &bg, &[]);
                 pass.dispatch_workgroups(self.n.div_ceil(WG).max(1), batch.len() as u32, 1);
             }
-            let data = self.read_back(&bits, size, enc)?;
+            let data = self.ctx.read_back(&bits, size, enc)?;
             let words: &[u32] = bytemuck::cast_slice(&data);
             out.extend(words.chunks(self.words as usize).map(|w| w.to_vec()));
         }
@@ -276,7 +427,7 @@ impl GpuBackend {
         let partial = d.create_buffer(&wgpu::BufferDescriptor { label: Some("partial"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
         let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [ambient[0], ambient[1], ambient[2], 0.0], eps: self.eps, pad: [0.0; 3] };
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("forward params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
-        let layout = self.pipes.forward.get_bind_group_layout(0);
+        let layout = self.ctx.pipes.forward.get_bind_group_layout(0);
         let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("forward"),
             layout: &layout,
@@ -291,11 +442,11 @@ impl GpuBackend {
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.pipes.forward);
+            pass.set_pipeline(&self.ctx.pipes.forward);
             pass.set_bind_group(0, &bg, &[]);
             pass.dispatch_workgroups(groups, 1, 1);
         }
-        let data = self.read_back(&partial, size, enc)?;
+        let data = self.ctx.read_back(&partial, size, enc)?;
         let p: &[f32] = bytemuck::cast_slice(&data);
         let mut ev = Eval { grad: vec![[0.0; 6]; k], ..Default::default() };
         let mut num = 0.0f64;
@@ -370,7 +521,7 @@ mod tests {
             Light { pos: Vec3::new(3.1, 2.0, 2.4), rgb: [0.7, 1.2, 1.9] },
             Light { pos: Vec3::new(0.6, 0.4, 2.7), rgb: [1.0, 1.0, 1.0] },
         ];
-        let mut gpu = GpuBackend::new(&pb, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &pb, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
         let positions: Vec<Vec3> = lights.iter().map(|l| l.pos).collect();
         let g_bits = gpu.trace(&positions).unwrap();
         let c_bits: Vec<Vec<u32>> = positions.iter().map(|&p| crate::visibility::trace_light(&bvh, &pb, p)).collect();

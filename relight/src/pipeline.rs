@@ -107,6 +107,8 @@ pub struct Report {
     pub output: String,
     pub backend: String,
     pub backend_reason: String,
+    /// Where the target projection ran ("wgpu", "cpu", or "cpu (why not wgpu)").
+    pub target_backend: String,
     pub scheme: String,
     pub init: String,
     pub vertices_input: usize,
@@ -143,24 +145,43 @@ impl Stages {
     }
 }
 
+/// Where the heavy kernels will run, decided before the target projection (which runs
+/// on the same device).
+pub enum Plan {
+    Cpu,
+    Wgpu(crate::gpu::Context),
+}
+
 /// Picks the backend. `auto` takes a hardware GPU when wgpu finds one; a software adapter
 /// (lavapipe, llvmpipe) is slower than the CPU path, so `auto` then uses the CPU.
-pub fn choose_backend<'a>(choice: BackendChoice, pb: &'a Problem, bvh: &'a Bvh) -> Result<(Box<dyn Backend + 'a>, String)> {
+pub fn choose_backend(choice: BackendChoice) -> Result<(Plan, String)> {
+    use crate::gpu::Context;
     match choice {
-        BackendChoice::Cpu => Ok((Box::new(Cpu { pb, bvh }), "--backend cpu".into())),
-        BackendChoice::Wgpu => {
-            let g = crate::gpu::GpuBackend::new(pb, bvh)?;
-            Ok((Box::new(g), "--backend wgpu".into()))
-        }
-        BackendChoice::Auto => match crate::gpu::Context::probe() {
-            Ok(info) if !info.software => {
-                let g = crate::gpu::GpuBackend::new(pb, bvh)?;
-                Ok((Box::new(g), format!("auto: hardware adapter {}", info.name)))
-            }
-            Ok(info) => Ok((Box::new(Cpu { pb, bvh }), format!("auto: only a software adapter ({}), the CPU path is faster", info.name))),
-            Err(e) => Ok((Box::new(Cpu { pb, bvh }), format!("auto: no wgpu adapter ({e})"))),
+        BackendChoice::Cpu => Ok((Plan::Cpu, "--backend cpu".into())),
+        BackendChoice::Wgpu => Ok((Plan::Wgpu(Context::new()?), "--backend wgpu".into())),
+        BackendChoice::Auto => match Context::probe() {
+            Ok(info) if !info.software => Ok((Plan::Wgpu(Context::new()?), format!("auto: hardware adapter {}", info.name))),
+            Ok(info) => Ok((Plan::Cpu, format!("auto: only a software adapter ({}), the CPU path is faster", info.name))),
+            Err(e) => Ok((Plan::Cpu, format!("auto: no wgpu adapter ({e})"))),
         },
     }
+}
+
+/// The target projection on the chosen device; the CPU when the textures do not fit the
+/// adapter's limits (the note says so).
+fn project(plan: &Plan, scene: &crate::scene::Scene) -> Result<(target::Target, TargetStats, String)> {
+    if let Plan::Wgpu(ctx) = plan {
+        let bytes = crate::gpu::texture_bytes(scene);
+        if bytes <= ctx.max_binding() {
+            let (sums, samples) = ctx.target_sums(scene)?;
+            let (tg, st) = target::gather(scene, &sums, samples);
+            return Ok((tg, st, "wgpu".into()));
+        }
+        let (tg, st) = target::project_cpu(scene);
+        return Ok((tg, st, format!("cpu (the textures, {} MB, exceed the adapter's storage binding limit)", bytes >> 20)));
+    }
+    let (tg, st) = target::project_cpu(scene);
+    Ok((tg, st, "cpu".into()))
 }
 
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
@@ -188,8 +209,11 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let subdivision = bound.map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
     st.done("subdivide");
 
+    let (plan, reason) = choose_backend(opts.backend)?;
+    st.done("backend");
+
     progress.stage("target");
-    let (tg, tstats) = target::project_cpu(&scene);
+    let (tg, tstats, target_backend) = project(&plan, &scene)?;
     st.done("target");
     if tstats.with_target == 0 {
         return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
@@ -202,9 +226,12 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let bvh = Bvh::build(&scene.mesh);
     st.done("bvh");
 
-    let (mut backend, reason) = choose_backend(opts.backend, &pb, &bvh)?;
+    let mut backend: Box<dyn Backend + '_> = match plan {
+        Plan::Cpu => Box::new(Cpu { pb: &pb, bvh: &bvh }),
+        Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &pb, &bvh)?),
+    };
     let backend_name = backend.name();
-    st.done("backend");
+    st.done("upload");
 
     // Starting lights.
     progress.stage("init");
@@ -351,6 +378,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         output: opts.output.display().to_string(),
         backend: backend_name,
         backend_reason: reason,
+        target_backend,
         scheme: opts.scheme.clone(),
         init: match &opts.init {
             Init::Auto => "auto".into(),

@@ -31,10 +31,18 @@ fn wrap_index(i: i64, n: u32, mode: Wrap) -> u32 {
     r as u32
 }
 
+/// Texel coordinates are clamped to +-2^24 before rounding, so that absurd UVs (finite but
+/// huge) index the texture the same way here and on the GPU, whose integers are 32 bits.
+pub const COORD_LIMIT: f32 = 16_777_216.0;
+
+fn coord(u: f32, size: u32) -> f32 {
+    (u * size as f32).clamp(-COORD_LIMIT, COORD_LIMIT)
+}
+
 /// The texel holding `uv` (nearest filtering), after wrapping.
 pub fn nearest(tex: &Texture, u: f32, v: f32) -> [u8; 4] {
-    let x = (u * tex.width as f32).floor() as i64;
-    let y = (v * tex.height as f32).floor() as i64;
+    let x = coord(u, tex.width).floor() as i64;
+    let y = coord(v, tex.height).floor() as i64;
     texel(tex, x, y)
 }
 
@@ -48,8 +56,8 @@ fn texel(tex: &Texture, x: i64, y: i64) -> [u8; 4] {
 /// Bilinear lookup of the stored values, each channel in [0, 1], after `decode` is applied
 /// to every tap (decoding before filtering, as GPUs do for sRGB textures).
 pub fn bilinear(tex: &Texture, u: f32, v: f32, decode: impl Fn(f32) -> f32) -> [f32; 3] {
-    let fx = u * tex.width as f32 - 0.5;
-    let fy = v * tex.height as f32 - 0.5;
+    let fx = coord(u, tex.width) - 0.5;
+    let fy = coord(v, tex.height) - 0.5;
     let x0 = fx.floor();
     let y0 = fy.floor();
     let (tx, ty) = (fx - x0, fy - y0);

@@ -7,6 +7,11 @@
 //! down keeping hue where a channel would exceed 255. The lights are recorded as `light`
 //! entities, so the sample is a ground truth for relighting.
 //!
+//! Luxels follow q3map2's layout (`lightmaps_ydnar`): a face `len` units long gets
+//! `ceil(len / 16) + 1` luxels, luxel `i` samples the point `i` steps from the face's
+//! corner, and a vertex's lightmap coordinate is `(step + 0.5) / 128`: vertices sit on
+//! luxel centres, so bilinear filtering never reads outside the face's block.
+//!
 //! Everything is deterministic: the same code gives byte-identical files.
 
 use glam::DVec3;
@@ -339,7 +344,9 @@ pub fn generate() -> Sample {
 
     for q in &quads {
         let n = q.u.cross(q.v).normalize();
-        let (w, h) = ((q.u.length() / LUXEL).round() as usize, (q.v.length() / LUXEL).round() as usize);
+        // Luxel counts along u and v (q3map2: ceil(len / samplesize) + 1; our faces are
+        // multiples of 16 units, so luxels are exactly LUXEL apart).
+        let (w, h) = ((q.u.length() / LUXEL).ceil() as usize + 1, (q.v.length() / LUXEL).ceil() as usize + 1);
         let mut s = Surface::new(q.shader, SurfaceType::Polygon);
         s.first_vert = verts.len() as u32;
         s.num_verts = 4;
@@ -355,7 +362,7 @@ pub fn generate() -> Sample {
             verts.push(DrawVert {
                 xyz: p.as_vec3().to_array(),
                 st: [st[0] as f32, st[1] as f32],
-                lightmap: [((px as f64 + a * w as f64) / LIGHTMAP_SIZE as f64) as f32, ((py as f64 + b * h as f64) / LIGHTMAP_SIZE as f64) as f32],
+                lightmap: [((px as f64 + 0.5 + a * (w - 1) as f64) / LIGHTMAP_SIZE as f64) as f32, ((py as f64 + 0.5 + b * (h - 1) as f64) / LIGHTMAP_SIZE as f64) as f32],
                 normal: n.as_vec3().to_array(),
                 color: [color[0], color[1], color[2], 255],
             });
@@ -367,13 +374,13 @@ pub fn generate() -> Sample {
             s.lightmap = page as i32;
             (s.lightmap_x, s.lightmap_y, s.lightmap_w, s.lightmap_h) = (px as i32, py as i32, w as i32, h as i32);
             s.lightmap_origin = q.origin.as_vec3().to_array();
-            s.lightmap_vecs = [(q.u / w as f64).as_vec3().to_array(), (q.v / h as f64).as_vec3().to_array(), n.as_vec3().to_array()];
-            // Bake: luxel (i, j) centre at origin + (i + 0.5)/w u + (j + 0.5)/h v.
+            s.lightmap_vecs = [(q.u / (w - 1) as f64).as_vec3().to_array(), (q.v / (h - 1) as f64).as_vec3().to_array(), n.as_vec3().to_array()];
+            // Bake: luxel (i, j) samples origin + i/(w-1) u + j/(h-1) v.
             let texels: Vec<[u8; 3]> = (0..w * h)
                 .into_par_iter()
                 .map(|k| {
                     let (i, j) = (k % w, k / w);
-                    let p = q.origin + q.u * ((i as f64 + 0.5) / w as f64) + q.v * ((j as f64 + 0.5) / h as f64);
+                    let p = q.origin + q.u * (i as f64 / (w - 1) as f64) + q.v * (j as f64 / (h - 1) as f64);
                     clamp_bytes(irradiance_bytes(p, n, &LIGHTS, Some(&blocked)))
                 })
                 .collect();
@@ -384,7 +391,9 @@ pub fn generate() -> Sample {
 
     // The arch patch: lightmap coordinates linear in the patch parameters.
     {
-        let (w, h) = (16usize, 8usize);
+        // q3map2 patch layout: luxels spread evenly over the patch parameters, control
+        // rows and columns on luxel centres.
+        let (w, h) = (17usize, 9usize);
         let (page, px, py) = pages.alloc(w, h);
         let mut s = Surface::new(3, SurfaceType::Patch);
         s.first_vert = verts.len() as u32;
@@ -408,7 +417,7 @@ pub fn generate() -> Sample {
                 verts.push(DrawVert {
                     xyz: p.as_vec3().to_array(),
                     st: [(p.y / 64.0) as f32, (-p.z / 64.0) as f32],
-                    lightmap: [((px as f64 + a * w as f64) / LIGHTMAP_SIZE as f64) as f32, ((py as f64 + b * h as f64) / LIGHTMAP_SIZE as f64) as f32],
+                    lightmap: [((px as f64 + 0.5 + a * (w - 1) as f64) / LIGHTMAP_SIZE as f64) as f32, ((py as f64 + 0.5 + b * (h - 1) as f64) / LIGHTMAP_SIZE as f64) as f32],
                     normal: n.as_vec3().to_array(),
                     color: [255; 4],
                 });
@@ -418,7 +427,7 @@ pub fn generate() -> Sample {
             .into_par_iter()
             .map(|k| {
                 let (i, j) = (k % w, k / w);
-                let (u, v) = (2.0 * (i as f64 + 0.5) / w as f64, (j as f64 + 0.5) / h as f64);
+                let (u, v) = (2.0 * i as f64 / (w - 1) as f64, j as f64 / (h - 1) as f64);
                 let p = DVec3::from_array(patch::surface_point(&arch_input, u, v));
                 clamp_bytes(irradiance_bytes(p, normal_at(u, v), &LIGHTS, Some(&blocked)))
             })
