@@ -15,8 +15,8 @@ pub struct RelightArgs {
     /// Blender import/export. The lightmap must be the occlusionTexture on TEXCOORD_1.
     pub input: PathBuf,
     /// Output (.gltf or .glb): the input scene plus KHR_lights_punctual point lights.
-    #[arg(short, long, value_name = "OUT")]
-    pub output: PathBuf,
+    #[arg(short, long, value_name = "OUT", required_unless_present = "write_mesh")]
+    pub output: Option<PathBuf>,
     /// Refine the mesh before projecting the target: `lightmap` (no edge longer than one
     /// lightmap texel), `off`, or a largest edge length in meters.
     #[arg(long, default_value = "lightmap", value_name = "lightmap|off|METERS")]
@@ -55,6 +55,11 @@ pub struct RelightArgs {
     /// the same seed gives the same result.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Only write the mesh relight would fit on (after --subdivide) to this PLY file and
+    /// stop: positions in meters, lightmap UVs in texels as the texture coordinate. For
+    /// inspecting the subdivision in MeshLab.
+    #[arg(long = "write-mesh", value_name = "mesh.ply")]
+    pub write_mesh: Option<PathBuf>,
     /// No progress display.
     #[arg(short, long)]
     pub quiet: bool,
@@ -120,7 +125,7 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
     };
     Ok(Options {
         input: a.input.clone(),
-        output: a.output.clone(),
+        output: a.output.clone().unwrap_or_default(),
         subdivide,
         max_vertices: a.max_vertices.max(3),
         init,
@@ -139,6 +144,14 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
 
 pub fn run(a: RelightArgs) -> Result<(), String> {
     let opts = parse(&a)?;
+    if let Some(mesh) = &a.write_mesh {
+        let stats = pipeline::write_mesh(&opts, mesh).map_err(|e| e.to_string())?;
+        println!("mesh of {} -> {}", opts.input.display(), mesh.display());
+        if let Some(s) = stats {
+            println!("  subdivide {} -> {} vertices, {} -> {} triangles (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.triangles_before, s.triangles_after, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
+        }
+        return Ok(());
+    }
     let bars = Bars { quiet: a.quiet, bar: Default::default() };
     let rep = pipeline::run(&opts, &bars).map_err(|e| e.to_string())?;
     bars.phase_done();

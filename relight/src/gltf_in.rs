@@ -221,6 +221,7 @@ pub fn read(path: &Path) -> Result<Scene> {
             }
             for t in indices.chunks_exact(3) {
                 let tri = if flip { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] };
+                mesh.tri_source.push(mesh.triangles.len() as u32);
                 mesh.triangles.push(tri.map(|i| base + i));
                 mesh.tri_material.push(mat as u32);
             }

@@ -513,6 +513,7 @@ mod tests {
         mesh.reweld();
         mesh.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
         mesh.tri_material.extend([0, 0]);
+        mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
         let (lo, hi) = mesh.bounds();
         let pb = Problem::new(&mesh, &tg, (hi - lo).length());
         let bvh = Bvh::build(&mesh);

@@ -7,7 +7,7 @@
 //! vertices; [`bvh`] is built once; [`fit`] drives the optimisers ([`optim`]) over the
 //! forward model ([`model`], visibility cached in [`visibility`]) on a [`backend`];
 //! [`init`] chooses the starting lights; [`lights_out`] writes the result and [`report`]
-//! the numbers.
+//! the numbers; [`ply`] writes the fitted mesh for inspection.
 
 pub mod backend;
 pub mod bvh;
@@ -20,6 +20,7 @@ pub mod lights_out;
 pub mod model;
 pub mod optim;
 pub mod pipeline;
+pub mod ply;
 pub mod report;
 pub mod scene;
 pub mod schemes;

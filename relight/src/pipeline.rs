@@ -184,6 +184,26 @@ fn project(plan: &Plan, scene: &crate::scene::Scene) -> Result<(target::Target, 
     Ok((tg, st, "cpu".into()))
 }
 
+fn bound_of(s: Subdivide) -> Option<Bound> {
+    match s {
+        Subdivide::Off => None,
+        Subdivide::Lightmap => Some(Bound::Texels(1.0)),
+        Subdivide::Meters(m) => Some(Bound::Meters(m)),
+    }
+}
+
+/// Reads `opts.input`, subdivides it as `run` would, and writes the mesh to `path` as PLY
+/// ([`crate::ply`]); nothing is fitted. Returns the subdivision's statistics.
+pub fn write_mesh(opts: &Options, path: &std::path::Path) -> Result<Option<subdivide::Stats>> {
+    if q3gltf_convert::output::same_file(path, &opts.input) {
+        return Err(Error::Usage(format!("{}: the mesh would overwrite the input", path.display())));
+    }
+    let mut scene = gltf_in::read(&opts.input)?;
+    let stats = bound_of(opts.subdivide).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
+    crate::ply::write(&scene, path)?;
+    Ok(stats)
+}
+
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let t_all = Instant::now();
     let deadline = opts.time_limit.map(|d| t_all + d);
@@ -201,12 +221,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     st.done("read");
 
     progress.stage("subdivide");
-    let bound = match opts.subdivide {
-        Subdivide::Off => None,
-        Subdivide::Lightmap => Some(Bound::Texels(1.0)),
-        Subdivide::Meters(m) => Some(Bound::Meters(m)),
-    };
-    let subdivision = bound.map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
+    let subdivision = bound_of(opts.subdivide).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
     st.done("subdivide");
 
     let (plan, reason) = choose_backend(opts.backend)?;

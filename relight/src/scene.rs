@@ -3,7 +3,8 @@
 //!
 //! Invariants (established by `gltf_in`, kept by `subdivide`):
 //! - every array indexed by vertex has `positions.len()` entries; every triangle index is
-//!   in range; `tri_material[t]` indexes `materials`;
+//!   in range; `tri_material[t]` indexes `materials`; `tri_source` has one entry per
+//!   triangle;
 //! - normals are unit length (a vertex without a usable normal gets its face normal);
 //! - `weld[v]` is the same for vertices whose positions are bit-identical, so edges can be
 //!   matched across primitives.
@@ -102,6 +103,8 @@ pub struct Mesh {
     pub v_material: Vec<u32>,
     pub triangles: Vec<[u32; 3]>,
     pub tri_material: Vec<u32>,
+    /// The input triangle each triangle was cut from (its own index before subdivision).
+    pub tri_source: Vec<u32>,
 }
 
 impl Mesh {

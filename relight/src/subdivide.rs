@@ -118,9 +118,11 @@ fn split_round(mesh: &mut Mesh, split: &HashSet<(u32, u32)>) {
     let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
     let old_tris = std::mem::take(&mut mesh.triangles);
     let old_mats = std::mem::take(&mut mesh.tri_material);
+    let old_src = std::mem::take(&mut mesh.tri_source);
     let mut tris = Vec::with_capacity(old_tris.len() * 2);
     let mut mats = Vec::with_capacity(old_tris.len() * 2);
-    for (tri, mat) in old_tris.into_iter().zip(old_mats) {
+    let mut srcs = Vec::with_capacity(old_tris.len() * 2);
+    for ((tri, mat), src) in old_tris.into_iter().zip(old_mats).zip(old_src) {
         let mut m = [None; 3];
         for k in 0..3 {
             let (a, b) = (tri[k], tri[(k + 1) % 3]);
@@ -133,6 +135,7 @@ fn split_round(mesh: &mut Mesh, split: &HashSet<(u32, u32)>) {
         let mut push = |t: [u32; 3]| {
             tris.push(t);
             mats.push(mat);
+            srcs.push(src);
         };
         let [v0, v1, v2] = tri;
         match m {
@@ -171,6 +174,7 @@ fn split_round(mesh: &mut Mesh, split: &HashSet<(u32, u32)>) {
     }
     mesh.triangles = tris;
     mesh.tri_material = mats;
+    mesh.tri_source = srcs;
     mesh.reweld();
 }
 

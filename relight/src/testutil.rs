@@ -46,6 +46,7 @@ pub fn room(n: usize) -> (Mesh, Target) {
             for k in 0..n {
                 m.triangles.push([idx(i, k), idx(i + 1, k), idx(i + 1, k + 1)]);
                 m.triangles.push([idx(i, k), idx(i + 1, k + 1), idx(i, k + 1)]);
+                m.tri_source.extend([m.triangles.len() as u32 - 2, m.triangles.len() as u32 - 1]);
                 m.tri_material.extend([0, 0]);
             }
         }
