@@ -207,3 +207,36 @@ fn target_projection_wgpu_agrees_with_cpu_on_real_maps() {
         assert!(area_diff < 1e-4, "{}: vertex areas differ by {area_diff:e}", path.display());
     }
 }
+
+/// Huge coordinates: the converted sample moved 1000 km away (a parent node with a large
+/// translation, as a georeferenced scene would have). Positions are recentred in f64 on
+/// reading, so the fit is as good as at the origin and the lights come back in world space.
+#[test]
+fn far_from_the_origin_the_fit_is_unchanged() {
+    let dir = tmp("far");
+    let gltf = convert_sample(&dir);
+    let offset = [1.0e6, 250.0, -2.0e6];
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    let scene = json["scene"].as_u64().unwrap_or(0) as usize;
+    let roots = json["scenes"][scene]["nodes"].clone();
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    nodes.push(serde_json::json!({ "name": "far away", "translation": offset, "children": roots }));
+    let root = nodes.len() - 1;
+    json["scenes"][scene]["nodes"] = serde_json::json!([root]);
+    let far = dir.join("far.gltf");
+    std::fs::write(&far, serde_json::to_vec(&json).unwrap()).unwrap();
+    let out = dir.join("far.relit.gltf");
+    let rep = dir.join("r.json");
+    run(&["relight", far.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    let err = r["rel_error_final"].as_f64().unwrap();
+    assert!(err < 0.08, "relative error {err}");
+    let found = lights_of(&r);
+    assert_eq!(found.len(), 3, "{found:?}");
+    for (p, cd) in sample_truth() {
+        let p = [p[0] + offset[0], p[1] + offset[1], p[2] + offset[2]];
+        let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).unwrap();
+        assert!(dist(best.0, p) < 0.12, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
+        assert!((best.1 / cd - 1.0).abs() < 0.03, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
+    }
+}

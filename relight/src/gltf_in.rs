@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use glam::{Mat3, Mat4, Vec2, Vec3};
+use glam::{DMat3, DMat4, DVec3, Vec2, Vec3};
 use serde_json::Value;
 
 use crate::error::{Error, Result};
@@ -18,6 +18,8 @@ use crate::scene::{InputLight, Lighting, Material, Mesh, Scene, Texture, Wrap};
 pub const DEFAULT_OVERBRIGHT_BITS: u32 = 2;
 /// Refuse meshes larger than this many vertices or triangles (a corrupt or hostile count).
 pub const MAX_ELEMENTS: usize = 50_000_000;
+/// Largest world coordinate accepted, meters (f64 still resolves 0.1 mm there).
+pub const MAX_COORDINATE: f64 = 1e12;
 
 fn extras_of(raw: &Option<Box<serde_json::value::RawValue>>) -> Value {
     raw.as_ref().and_then(|r| serde_json::from_str(r.get()).ok()).unwrap_or(Value::Null)
@@ -133,12 +135,14 @@ pub fn read(path: &Path) -> Result<Scene> {
         Some(s) => s.nodes().collect(),
         None => doc.nodes().collect(),
     };
-    let mut stack: Vec<(gltf::Node, Mat4, usize)> = roots.into_iter().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    // World positions in f64 until the origin is known (see `Scene::origin`).
+    let mut world_pos: Vec<DVec3> = Vec::new();
+    let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots.into_iter().map(|n| (n, DMat4::IDENTITY, 0)).collect();
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > 256 {
             return Err(Error::input(path, "node hierarchy deeper than 256 (a cycle?)"));
         }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(f64::from)));
         for c in node.children() {
             stack.push((c, world, depth + 1));
         }
@@ -150,7 +154,8 @@ pub fn read(path: &Path) -> Result<Scene> {
                 lights.push(InputLight {
                     node: node.index(),
                     name: node.name().or(light.name()).unwrap_or("").to_string(),
-                    position: world.transform_point3(Vec3::ZERO),
+                    position: Vec3::ZERO, // made relative to the origin below
+                    world_position: world.transform_point3(DVec3::ZERO),
                     color: light.color(),
                     intensity_cd: light.intensity(),
                     locked,
@@ -159,8 +164,8 @@ pub fn read(path: &Path) -> Result<Scene> {
             }
         }
         let Some(m) = node.mesh() else { continue };
-        let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
-        let flip = Mat3::from_mat4(world).determinant() < 0.0;
+        let normal_matrix = DMat3::from_mat4(world).inverse().transpose();
+        let flip = DMat3::from_mat4(world).determinant() < 0.0;
         for prim in m.primitives() {
             let what = || format!("mesh {:?} primitive {}", m.name().unwrap_or(""), prim.index());
             if prim.mode() != gltf::mesh::Mode::Triangles {
@@ -174,7 +179,7 @@ pub fn read(path: &Path) -> Result<Scene> {
             };
             let pos: Vec<Vec3> = pos.map(Vec3::from).collect();
             let n = pos.len();
-            if mesh.positions.len() + n > MAX_ELEMENTS {
+            if world_pos.len() + n > MAX_ELEMENTS {
                 return Err(Error::unsupported(path, format!("more than {MAX_ELEMENTS} vertices")));
             }
             let normals: Option<Vec<Vec3>> = reader.read_normals().map(|it| it.map(Vec3::from).collect());
@@ -205,14 +210,14 @@ pub fn read(path: &Path) -> Result<Scene> {
                 skipped.push(format!("{}: vertex-lit material without COLOR_0: no target", what()));
                 mat = default_material;
             }
-            let base = mesh.positions.len() as u32;
+            let base = world_pos.len() as u32;
             for (k, p) in pos.iter().enumerate() {
-                let wp = world.transform_point3(*p);
-                if !wp.is_finite() {
-                    return Err(Error::input(path, format!("{}: vertex {k} has a non-finite position", what())));
+                let wp = world.transform_point3(p.as_dvec3());
+                if !wp.is_finite() || wp.abs().max_element() > MAX_COORDINATE {
+                    return Err(Error::input(path, format!("{}: vertex {k} has a non-finite or absurd position ({wp})", what())));
                 }
-                mesh.positions.push(wp);
-                let nw = normals.as_ref().map(|v| (normal_matrix * v[k]).normalize_or_zero()).unwrap_or(Vec3::ZERO);
+                world_pos.push(wp);
+                let nw = normals.as_ref().map(|v| (normal_matrix * v[k].as_dvec3()).normalize_or_zero().as_vec3()).unwrap_or(Vec3::ZERO);
                 mesh.normals.push(if nw.is_finite() { nw } else { Vec3::ZERO });
                 mesh.uv0.push(uv0.as_ref().map(|v| v[k]).filter(|u| u.is_finite()).unwrap_or(Vec2::ZERO));
                 mesh.uv1.push(uv1.as_ref().map(|v| v[k]).filter(|u| u.is_finite()).unwrap_or(Vec2::ZERO));
@@ -230,10 +235,16 @@ pub fn read(path: &Path) -> Result<Scene> {
     if mesh.triangles.is_empty() {
         return Err(Error::unsupported(path, "the scene has no triangles"));
     }
+    let (lo, hi) = world_pos.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let origin = ((lo + hi) * 0.5).round();
+    mesh.positions = world_pos.iter().map(|p| (*p - origin).as_vec3()).collect();
+    for l in &mut lights {
+        l.position = (l.world_position - origin).as_vec3();
+    }
     repair_normals(&mut mesh);
     mesh.reweld();
     lights.sort_by_key(|l| l.node);
-    Ok(Scene { mesh, materials, textures, lights, skipped })
+    Ok(Scene { mesh, materials, textures, lights, origin, skipped })
 }
 
 /// Vertices without a usable normal get the area-weighted normal of their triangles.

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use glam::{DMat4, Vec3};
+use glam::Vec3;
 use serde::Serialize;
 use serde_json::json;
 
@@ -351,10 +351,15 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         .enumerate()
         .map(|(j, l)| {
             let src = sources.get(j).copied().flatten().map(|k| &scene.lights[k]);
+            // Back to world space; a locked light keeps its input position exactly.
+            let position = match src {
+                Some(s) if locked[j] => s.world_position,
+                _ => scene.origin + l.pos.as_dvec3(),
+            };
             OutLight {
-                position: l.pos.as_dvec3(),
+                position,
                 rgb: l.rgb.map(|c| c as f64),
-                source_node: src.map(|s| (s.node, DMat4::from_cols_array(&s.parent_world.to_cols_array().map(|v| v as f64)))),
+                source_node: src.map(|s| (s.node, s.parent_world)),
                 name: format!("light_{j:03}"),
                 extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
                 locked: locked[j],

@@ -27,8 +27,10 @@ pub fn write(scene: &Scene, path: &Path) -> Result<()> {
             _ => [0.0; 2],
         }
     };
+    let o = scene.origin;
     let header = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment q3gltf relight mesh: meters, glTF axes; texture_u/v = lightmap texels\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\nproperty float texture_u\nproperty float texture_v\nproperty float quality\nelement face {nt}\nproperty list uchar int vertex_indices\nproperty float quality\nend_header\n"
+        "ply\nformat binary_little_endian 1.0\ncomment q3gltf relight mesh: meters, glTF axes, relative to origin; texture_u/v = lightmap texels\ncomment origin {} {} {}\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\nproperty float texture_u\nproperty float texture_v\nproperty float quality\nelement face {nt}\nproperty list uchar int vertex_indices\nproperty float quality\nend_header\n",
+        o.x, o.y, o.z
     );
     let mut out = Vec::with_capacity(header.len() + nv * 24 + nt * 17);
     out.extend_from_slice(header.as_bytes());

@@ -1,6 +1,10 @@
 //! The scene relight works on: one flat triangle mesh in world space (meters, glTF axes),
 //! its materials and textures, and the point lights the input already had.
 //!
+//! Positions are stored relative to `Scene::origin` (the centre of the mesh's bounding
+//! box, computed in f64): a map placed kilometres from the origin keeps f32 precision in
+//! every kernel, and lights go back to world space only when they are written.
+//!
 //! Invariants (established by `gltf_in`, kept by `subdivide`):
 //! - every array indexed by vertex has `positions.len()` entries; every triangle index is
 //!   in range; `tri_material[t]` indexes `materials`; `tri_source` has one entry per
@@ -73,21 +77,23 @@ pub struct InputLight {
     /// Index of the glTF node carrying the light.
     pub node: usize,
     pub name: String,
-    /// World position, meters.
+    /// Position relative to `Scene::origin`, meters.
     pub position: Vec3,
+    /// World position, meters (f64).
+    pub world_position: glam::DVec3,
     /// Linear colour, as in the file.
     pub color: [f32; 3],
     /// Luminous intensity, candela.
     pub intensity_cd: f32,
     /// `extras.locked == true`: the optimiser must not change this light.
     pub locked: bool,
-    /// World matrix of the node's parent (identity for a root node).
-    pub parent_world: glam::Mat4,
+    /// World matrix of the node's parent (identity for a root node), in f64.
+    pub parent_world: glam::DMat4,
 }
 
 #[derive(Debug, Clone, Default)]
 pub struct Mesh {
-    /// World positions, meters.
+    /// Positions relative to `Scene::origin`, meters.
     pub positions: Vec<Vec3>,
     /// Unit world normals.
     pub normals: Vec<Vec3>,
@@ -144,6 +150,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub lights: Vec<InputLight>,
+    /// World position of the mesh's local origin: world = origin + stored position.
+    pub origin: glam::DVec3,
     /// Primitives skipped (not triangles, no positions), with why.
     pub skipped: Vec<String>,
 }
