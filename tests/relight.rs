@@ -80,7 +80,7 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
         assert!((best.1 / cd - 1.0).abs() < 0.03, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
     }
     let err = r["rel_error_final"].as_f64().unwrap();
-    // Measured 0.069 with the true lights as well as with the recovered ones: what is left
+    // Measured about 0.07 with the true lights as well as with the recovered ones: what is left
     // is at shadow boundaries, which 16-unit luxels point-sampled and filtered bilinearly
     // cannot resolve (the 5% is not reached; see the notes).
     assert!(err < 0.08, "relative error {err}");
