@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
-use q3gltf_relight::pipeline::{self, BackendChoice, Init, Options, Progress, Subdivide};
+use q3gltf_relight::pipeline::{self, BackendChoice, Init, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
 #[derive(Args)]
@@ -17,10 +17,17 @@ pub struct RelightArgs {
     /// Output (.gltf or .glb): the input scene plus KHR_lights_punctual point lights.
     #[arg(short, long, value_name = "OUT", required_unless_present = "write_mesh")]
     pub output: Option<PathBuf>,
+    /// Where the lightmap is compared with the model: `luxel` (one row per lightmap texel,
+    /// at the surface point q3map2 baked it for: exact for hard shadows) or `vertex` (the
+    /// thesis: the mass-lumped L2 projection of texture x lightmap onto the vertices).
+    #[arg(long, default_value = "luxel", value_parser = ["luxel", "vertex"])]
+    pub target: String,
     /// Refine the mesh before projecting the target: `lightmap` (no edge longer than one
-    /// lightmap texel), `off`, or a largest edge length in meters.
-    #[arg(long, default_value = "lightmap", value_name = "lightmap|off|METERS")]
-    pub subdivide: String,
+    /// lightmap texel), `off`, or a largest edge length in meters. Default: `lightmap` with
+    /// `--target vertex`, `off` with `--target luxel` (its lightmap rows do not depend on
+    /// the vertices; only vertex-lit surfaces would gain rows).
+    #[arg(long, value_name = "lightmap|off|METERS")]
+    pub subdivide: Option<String>,
     /// Vertex budget of the subdivision.
     #[arg(long = "max-vertices", default_value_t = 1_500_000)]
     pub max_vertices: usize,
@@ -102,11 +109,12 @@ impl Progress for Bars {
 }
 
 fn parse(a: &RelightArgs) -> Result<Options, String> {
-    let subdivide = match a.subdivide.as_str() {
-        "lightmap" => Subdivide::Lightmap,
-        "off" => Subdivide::Off,
-        s => match s.parse::<f32>() {
-            Ok(m) if m.is_finite() && m > 0.0 => Subdivide::Meters(m),
+    let subdivide = match a.subdivide.as_deref() {
+        None => None,
+        Some("lightmap") => Some(Subdivide::Lightmap),
+        Some("off") => Some(Subdivide::Off),
+        Some(s) => match s.parse::<f32>() {
+            Ok(m) if m.is_finite() && m > 0.0 => Some(Subdivide::Meters(m)),
             _ => return Err(format!("--subdivide {s:?}: expected lightmap, off or a positive length in meters")),
         },
     };
@@ -126,6 +134,7 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
     Ok(Options {
         input: a.input.clone(),
         output: a.output.clone().unwrap_or_default(),
+        target: if a.target == "vertex" { TargetSpace::Vertex } else { TargetSpace::Luxel },
         subdivide,
         max_vertices: a.max_vertices.max(3),
         init,
@@ -166,10 +175,16 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     if let Some(s) = &rep.subdivision {
         println!("  subdivide {} -> {} vertices in {} rounds (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.rounds, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
     }
-    println!(
-        "  target    {} vertices with a target, {} censored (lower bounds), {} without baked lighting",
-        rep.target.with_target, rep.target.censored, rep.target.no_coverage
-    );
+    match &rep.luxel {
+        Some(l) => println!(
+            "  target    {} luxels ({} censored: lower bounds) and {} vertex-lit vertices; {} sliver triangles without a luxel",
+            l.luxels, l.censored, l.vertex_rows, l.triangles_without_luxel
+        ),
+        None => println!(
+            "  target    {} vertices with a target, {} censored (lower bounds), {} without baked lighting",
+            rep.target.with_target, rep.target.censored, rep.target.no_coverage
+        ),
+    }
     println!("  lights    {} (pruned {}, merged {}); ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.ambient_note);
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();

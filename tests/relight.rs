@@ -59,6 +59,17 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+/// Every true light `(position + offset, cd)` has a found light within `tol_m` meters
+/// whose intensity is within `tol_rel`.
+fn assert_recovered(found: &[([f64; 3], f64, String)], truth: &[([f64; 3], f64)], offset: [f64; 3], tol_m: f64, tol_rel: f64) {
+    for &(p, cd) in truth {
+        let p = [p[0] + offset[0], p[1] + offset[1], p[2] + offset[2]];
+        let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).expect("some light was found");
+        assert!(dist(best.0, p) < tol_m, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
+        assert!((best.1 / cd - 1.0).abs() < tol_rel, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
+    }
+}
+
 #[test]
 fn sample_convert_then_relight_recovers_the_light_entities() {
     let dir = tmp("sample");
@@ -74,19 +85,27 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     let lights: Vec<_> = doc.lights().map(|l| l.collect::<Vec<_>>()).unwrap_or_default();
     assert_eq!(lights.len(), found.len(), "every reported light is in the file");
     assert_eq!(found.len(), 3, "as few lights as the scene needs: {found:?}");
-    for (p, cd) in sample_truth() {
-        let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).unwrap();
-        assert!(dist(best.0, p) < 0.12, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
-        assert!((best.1 / cd - 1.0).abs() < 0.03, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
-    }
+    // Measured: every light within 1 cm and 1% (the luxel target compares the model with
+    // the lightmap where q3map2 computed it).
+    assert_recovered(&found, &sample_truth(), [0.0; 3], 0.05, 0.02);
     let err = r["rel_error_final"].as_f64().unwrap();
-    // Measured about 0.07 with the true lights as well as with the recovered ones: what is left
-    // is at shadow boundaries, which 16-unit luxels point-sampled and filtered bilinearly
-    // cannot resolve (the 5% is not reached; see the notes).
-    assert!(err < 0.08, "relative error {err}");
+    // Measured about 0.044 (0.035 with the true lights: a handful of luxels whose shadow rays
+    // graze an occluder's edge exactly, where q3map2's test and ours disagree).
+    assert!(err < 0.05, "relative error {err}");
     assert!(r["iterations"].as_array().unwrap().len() > 3, "iterations are reported");
     let png = image::open(&plot).expect("the plot is a PNG");
     assert!(png.width() >= 600);
+
+    // The thesis's vertex target (lightmap resolution subdivision, mass-lumped projection):
+    // hard shadow edges are blurred into the vertices, so its floor is higher (about 0.07).
+    let rep_v = dir.join("report-vertex.json");
+    run(&["relight", gltf.to_str().unwrap(), "-o", dir.join("v.glb").to_str().unwrap(), "--target", "vertex", "--backend", "cpu", "--report", rep_v.to_str().unwrap(), "-q"]);
+    let rv = report(&rep_v);
+    assert_eq!(rv["target_space"], "vertex");
+    assert!(rv["subdivision"]["vertices_after"].as_u64().unwrap() > rv["subdivision"]["vertices_before"].as_u64().unwrap());
+    assert_recovered(&lights_of(&rv), &sample_truth(), [0.0; 3], 0.12, 0.03);
+    let err_v = rv["rel_error_final"].as_f64().unwrap();
+    assert!(err_v < 0.08, "vertex target: relative error {err_v}");
 
     // Re-run on its own output with the lights as the start: not worse.
     let out2 = dir.join("sample.relit2.glb");
@@ -230,13 +249,90 @@ fn far_from_the_origin_the_fit_is_unchanged() {
     run(&["relight", far.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
     let r = report(&rep);
     let err = r["rel_error_final"].as_f64().unwrap();
-    assert!(err < 0.08, "relative error {err}");
+    assert!(err < 0.05, "relative error {err}");
     let found = lights_of(&r);
     assert_eq!(found.len(), 3, "{found:?}");
-    for (p, cd) in sample_truth() {
-        let p = [p[0] + offset[0], p[1] + offset[1], p[2] + offset[2]];
-        let best = found.iter().min_by(|a, b| dist(a.0, p).total_cmp(&dist(b.0, p))).unwrap();
-        assert!(dist(best.0, p) < 0.12, "light at {p:?} recovered at {:?} ({} m away)", best.0, dist(best.0, p));
-        assert!((best.1 / cd - 1.0).abs() < 0.03, "light at {p:?}: {} cd recovered, {cd} cd expected", best.1);
+    assert_recovered(&found, &sample_truth(), offset, 0.05, 0.02);
+}
+
+/// Synthetic ground truth: the converted sample's lightmap re-rendered by relight's CPU
+/// reference from three known lights (other positions, colours and intensities than the
+/// sample's entities), stored as 8-bit lightmap texels as q3map2 would (overbright 2,
+/// scaled down keeping hue above 255), then relit from scratch (`--init auto`). Every
+/// light must come back within 1% of the scene diagonal and 2% in intensity, the
+/// relative error below 1%, and no light more than the scene needs.
+#[test]
+fn synthetic_ground_truth_is_recovered() {
+    use q3gltf_relight::bvh::Bvh;
+    use q3gltf_relight::model::{radiance, Light};
+    use q3gltf_relight::visibility::{trace_light, Visibility};
+    use q3gltf_relight::{gltf_in, luxel, target::Target};
+    let dir = tmp("synthetic");
+    let gltf = convert_sample(&dir);
+    // The sample's vertex-lit surface keeps q3map2's colours, which the truth did not make:
+    // declare it unlit (it still casts shadows).
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    for m in json["materials"].as_array_mut().unwrap() {
+        if m["extras"]["q3_lighting"] == "vertex" {
+            m["extras"]["q3_lighting"] = "none".into();
+        }
     }
+    std::fs::write(&gltf, serde_json::to_vec(&json).unwrap()).unwrap();
+    let mut scene = gltf_in::read(&gltf).unwrap();
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length() as f64;
+    let lx = luxel::problem(&scene, &Target::empty(scene.mesh.positions.len()), diag as f32);
+    // Irradiance / pi at every luxel: the model with a white albedo.
+    let mut pb = lx.problem.clone();
+    pb.albedo.iter_mut().for_each(|a| *a = [1.0; 3]);
+    let bvh = Bvh::build(&scene.mesh);
+    // World positions (m) and radiant intensities (W/sr) of the truth.
+    let truth_w: [([f64; 3], [f32; 3]); 3] = [([6.2, 4.6, -4.5], [70.0, 55.0, 40.0]), ([19.9, 3.7, -3.6], [25.0, 40.0, 60.0]), ([21.5, 2.6, -7.8], [30.0, 20.0, 12.0])];
+    let lights: Vec<Light> = truth_w
+        .iter()
+        .map(|(p, rgb)| Light { pos: (glam::DVec3::from_array(*p) - scene.origin).as_vec3(), rgb: *rgb })
+        .collect();
+    for l in &lights {
+        let (d, _) = bvh.nearest(l.pos).unwrap();
+        assert!(d > 0.5, "a truth light is {d} m from a surface: move it into free space");
+    }
+    let mut vis = Visibility::default();
+    vis.update(&lights, 0.0, pb.len(), &mut |ps| Ok(ps.iter().map(|&q| trace_light(&bvh, &pb, q)).collect())).unwrap();
+    let e = radiance(&pb, &vis, &lights, [0.0; 3]);
+    let mut lit = 0;
+    for (i, &[tex, x, y]) in lx.texels.iter().enumerate() {
+        let t = &mut scene.textures[tex as usize];
+        // e = byte / 255 * 2^2 (CONVENTIONS.md), rounded; above 255 scaled down keeping hue.
+        let b = e[i].map(|v| v as f64 / 4.0 * 255.0);
+        let m = b.iter().copied().fold(255.0, f64::max);
+        let o = ((y * t.width + x) * 4) as usize;
+        for c in 0..3 {
+            t.rgba8[o + c] = (b[c] * 255.0 / m).round() as u8;
+        }
+        lit += (b.iter().any(|&v| v >= 1.0)) as usize;
+    }
+    assert!(lit * 2 > lx.texels.len(), "most luxels are lit: {lit} of {}", lx.texels.len());
+    // Write the lightmaps back to the converted scene's files.
+    let mut written = 0;
+    for (m, mat) in scene.materials.iter().enumerate() {
+        let Some(t) = mat.lightmap else { continue };
+        let jm = json["materials"].as_array().unwrap().iter().find(|j| j["name"] == mat.name.as_str()).unwrap_or(&json["materials"][m]);
+        let tex = jm["occlusionTexture"]["index"].as_u64().unwrap() as usize;
+        let img = json["textures"][tex]["source"].as_u64().unwrap() as usize;
+        let uri = json["images"][img]["uri"].as_str().unwrap();
+        let tx = &scene.textures[t];
+        image::RgbaImage::from_raw(tx.width, tx.height, tx.rgba8.clone()).unwrap().save(dir.join(uri)).unwrap();
+        written += 1;
+    }
+    assert!(written > 0);
+    let out = dir.join("synthetic.relit.gltf");
+    let rep = dir.join("r.json");
+    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    let found = lights_of(&r);
+    let truth: Vec<([f64; 3], f64)> = truth_w.iter().map(|(p, rgb)| (*p, rgb.iter().copied().fold(0.0f32, f32::max) as f64 * 683.0)).collect();
+    assert_eq!(found.len(), truth.len(), "as many lights as the truth: {found:?}");
+    assert_recovered(&found, &truth, [0.0; 3], 0.01 * diag, 0.02);
+    let err = r["rel_error_final"].as_f64().unwrap();
+    assert!(err < 0.01, "relative error {err}");
 }

@@ -17,6 +17,7 @@ pub mod gltf_in;
 pub mod gpu;
 pub mod init;
 pub mod lights_out;
+pub mod luxel;
 pub mod model;
 pub mod optim;
 pub mod pipeline;

@@ -32,10 +32,12 @@ use crate::scene::Mesh;
 use crate::target::Target;
 use crate::visibility::Visibility;
 
-/// Per-vertex data of the vertices that carry a target (the only ones the objective sees).
+/// The rows of the objective: surface points that carry a target (the only ones the
+/// objective sees). A row is a mesh vertex (the thesis's projection, [`crate::target`]) or
+/// a lightmap texel's sample point ([`crate::luxel`]); the model treats both alike.
 #[derive(Debug, Clone, Default)]
 pub struct Problem {
-    /// Mesh vertex of each problem vertex.
+    /// Mesh vertex of each row (`u32::MAX` for a luxel row).
     pub vertex: Vec<u32>,
     pub pos: Vec<Vec3>,
     pub normal: Vec<Vec3>,
@@ -54,8 +56,14 @@ pub struct Problem {
 }
 
 impl Problem {
+    /// A problem without rows, with `eps` and the ray offset scaled to the scene.
+    pub fn empty(scene_diagonal: f32) -> Problem {
+        Problem { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), ..Default::default() }
+    }
+
+    /// One row per mesh vertex that carries a target.
     pub fn new(mesh: &Mesh, tg: &Target, scene_diagonal: f32) -> Problem {
-        let mut p = Problem { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), ..Default::default() };
+        let mut p = Problem::empty(scene_diagonal);
         for v in 0..mesh.positions.len() {
             let has = (0..3).any(|c| tg.weight[v][c] > 0.0 || tg.lower[v][c] > 0.0);
             if has && tg.area[v] > 0.0 {
@@ -67,7 +75,7 @@ impl Problem {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn push(&mut self, v: u32, pos: Vec3, normal: Vec3, albedo: [f32; 3], target: [f32; 3], weight: [f32; 3], lower: [f32; 3], area: f32) {
+    pub(crate) fn push(&mut self, v: u32, pos: Vec3, normal: Vec3, albedo: [f32; 3], target: [f32; 3], weight: [f32; 3], lower: [f32; 3], area: f32) {
         self.vertex.push(v);
         self.pos.push(pos);
         self.normal.push(normal);
@@ -76,6 +84,11 @@ impl Problem {
         self.weight.push(weight);
         self.lower.push(lower);
         self.area.push(area);
+    }
+
+    /// Completes a problem built row by row (computes the error's denominator).
+    pub(crate) fn finish(&mut self) {
+        self.set_norm2();
     }
 
     fn set_norm2(&mut self) {

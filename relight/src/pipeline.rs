@@ -30,6 +30,16 @@ pub enum Subdivide {
     Meters(f32),
 }
 
+/// Where the objective's rows are: see [`crate::luxel`] and [`crate::target`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetSpace {
+    /// One row per lightmap texel, at the point q3map2 baked it for (the default).
+    Luxel,
+    /// One row per (subdivided) vertex: the thesis's mass-lumped L2 projection.
+    Vertex,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub enum Init {
     Auto,
@@ -48,7 +58,10 @@ pub enum BackendChoice {
 pub struct Options {
     pub input: PathBuf,
     pub output: PathBuf,
-    pub subdivide: Subdivide,
+    pub target: TargetSpace,
+    /// `None`: `Lightmap` for the vertex target, `Off` for the luxel target (whose
+    /// lightmapped rows do not depend on the mesh's vertices).
+    pub subdivide: Option<Subdivide>,
     pub max_vertices: usize,
     pub init: Init,
     pub scheme: String,
@@ -65,7 +78,8 @@ impl Default for Options {
         Options {
             input: PathBuf::new(),
             output: PathBuf::new(),
-            subdivide: Subdivide::Lightmap,
+            target: TargetSpace::Luxel,
+            subdivide: None,
             max_vertices: 1_500_000,
             init: Init::Auto,
             scheme: "default".into(),
@@ -114,8 +128,13 @@ pub struct Report {
     pub vertices_input: usize,
     pub triangles_input: usize,
     pub subdivision: Option<subdivide::Stats>,
+    pub target_space: TargetSpace,
+    /// The per-vertex projection (with the luxel target: of the vertex-lit materials only).
     pub target: TargetStats,
-    pub problem_vertices: usize,
+    /// The luxel rows, with the luxel target.
+    pub luxel: Option<crate::luxel::LuxelStats>,
+    /// Rows of the objective (vertices or luxels).
+    pub problem_rows: usize,
     pub rel_error_initial: f64,
     pub rel_error_final: f64,
     pub lights: Vec<LightReport>,
@@ -184,7 +203,11 @@ fn project(plan: &Plan, scene: &crate::scene::Scene) -> Result<(target::Target, 
     Ok((tg, st, "cpu".into()))
 }
 
-fn bound_of(s: Subdivide) -> Option<Bound> {
+fn bound_of(opts: &Options) -> Option<Bound> {
+    let s = opts.subdivide.unwrap_or(match opts.target {
+        TargetSpace::Vertex => Subdivide::Lightmap,
+        TargetSpace::Luxel => Subdivide::Off,
+    });
     match s {
         Subdivide::Off => None,
         Subdivide::Lightmap => Some(Bound::Texels(1.0)),
@@ -199,7 +222,7 @@ pub fn write_mesh(opts: &Options, path: &std::path::Path) -> Result<Option<subdi
         return Err(Error::Usage(format!("{}: the mesh would overwrite the input", path.display())));
     }
     let mut scene = gltf_in::read(&opts.input)?;
-    let stats = bound_of(opts.subdivide).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
+    let stats = bound_of(opts).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
     crate::ply::write(&scene, path)?;
     Ok(stats)
 }
@@ -221,23 +244,34 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     st.done("read");
 
     progress.stage("subdivide");
-    let subdivision = bound_of(opts.subdivide).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
+    let subdivision = bound_of(opts).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
     st.done("subdivide");
 
     let (plan, reason) = choose_backend(opts.backend)?;
     st.done("backend");
 
     progress.stage("target");
-    let (tg, tstats, target_backend) = project(&plan, &scene)?;
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length();
+    let (pb, tstats, luxel_stats, target_backend) = match opts.target {
+        TargetSpace::Vertex => {
+            let (tg, tstats, target_backend) = project(&plan, &scene)?;
+            (Problem::new(&scene.mesh, &tg, diag), tstats, None, target_backend)
+        }
+        TargetSpace::Luxel => {
+            // The per-vertex projection is still needed for vertex-lit materials' rows.
+            let vertex_lit = scene.materials.iter().any(|m| m.lighting == crate::scene::Lighting::Vertex);
+            let (tg, tstats, backend) = if vertex_lit { project(&plan, &scene)? } else { (target::Target::empty(scene.mesh.positions.len()), TargetStats::default(), "none needed".into()) };
+            let lx = crate::luxel::problem(&scene, &tg, diag);
+            (lx.problem, tstats, Some(lx.stats), format!("luxel rows on the cpu; vertex-lit projection: {backend}"))
+        }
+    };
     st.done("target");
-    if tstats.with_target == 0 {
+    if pb.is_empty() || pb.weight.iter().all(|w| w.iter().all(|&x| x == 0.0)) {
         return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
     }
 
     progress.stage("bvh");
-    let (lo, hi) = scene.mesh.bounds();
-    let diag = (hi - lo).length();
-    let pb = Problem::new(&scene.mesh, &tg, diag);
     let bvh = Bvh::build(&scene.mesh);
     st.done("bvh");
 
@@ -408,8 +442,10 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         vertices_input,
         triangles_input,
         subdivision,
+        target_space: opts.target,
         target: tstats,
-        problem_vertices: pb.len(),
+        luxel: luxel_stats,
+        problem_rows: pb.len(),
         rel_error_initial,
         rel_error_final: final_eval.rel_error,
         lights: light_reports,

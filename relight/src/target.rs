@@ -50,6 +50,13 @@ pub struct Target {
     pub lower: Vec<[f32; 3]>,
 }
 
+impl Target {
+    /// A target of `n` vertices, none of which carries data.
+    pub fn empty(n: usize) -> Target {
+        Target { area: vec![0.0; n], albedo: vec![[0.0; 3]; n], value: vec![[0.0; 3]; n], weight: vec![[0.0; 3]; n], lower: vec![[0.0; 3]; n] }
+    }
+}
+
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct TargetStats {
     pub vertices: usize,

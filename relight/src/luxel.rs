@@ -1,0 +1,275 @@
+//! The luxel-space target: one objective row per lightmap texel ("luxel"), at the point
+//! of the surface the texel was baked for.
+//!
+//! q3map2 computed each luxel as the irradiance at one point of the surface (lightmap
+//! coordinates put vertices on luxel centres, CONVENTIONS.md). The engine then filters
+//! the luxels bilinearly. The thesis's target (the [`crate::target`] projection onto
+//! vertices) compares the model *at a vertex* with that filtered image averaged over the
+//! vertex's hat function: at a hard shadow edge the two cannot agree, whatever the lights
+//! (the bundled sample's floor error is 7% for the true lights, almost all of it at shadow
+//! edges). Here the model is instead evaluated where q3map2 evaluated it, so the true
+//! lights reproduce the data up to its 8-bit quantisation.
+//!
+//! For every lightmapped triangle, the texel centres `c` inside its TEXCOORD_1 footprint
+//! (in texel units, centres at half-integers, a tolerance of [`EDGE_TOLERANCE`] in
+//! barycentric coordinates so that centres on an edge count) become rows:
+//!
+//! - position and normal: the triangle's barycentric interpolation at `c`;
+//! - area `A` [m^2]: the world area of one texel, `area_world / area_texels`;
+//! - albedo: the mean of 4x4 albedo samples spread over the texel's square (mapped to
+//!   TEXCOORD_0 by the triangle's affine map), sRGB decoded, times the base colour factor;
+//! - target `t_c = albedo_c * decode(byte_c)` of the texel itself (no filtering);
+//! - censored texels (a channel at 255) are lower bounds on every channel, weight 0.
+//!
+//! A texel is claimed by the first triangle that contains its centre (triangles sharing a
+//! lightmap block share its texels). Vertex-lit materials keep their per-vertex rows.
+//!
+//! Invariant: every row has `A > 0`, a unit normal and finite values.
+
+use glam::{DVec2, Vec2, Vec3};
+
+use crate::model::Problem;
+use crate::scene::{Lighting, Scene};
+use crate::target::{Target, CENSOR_BYTE};
+use crate::texel;
+
+/// A texel centre counts as inside a triangle down to this barycentric coordinate.
+pub const EDGE_TOLERANCE: f64 = 1e-4;
+/// A triangle whose lightmap footprint spans more texels than this is refused (its UVs
+/// are not a lightmap's); the count is reported.
+pub const MAX_TEXELS_PER_TRIANGLE: f64 = 4.0 * 1024.0 * 1024.0;
+/// Albedo samples per texel side.
+const ALBEDO_SAMPLES: usize = 4;
+
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct LuxelStats {
+    /// Luxel rows (texels claimed by a triangle).
+    pub luxels: usize,
+    /// Luxels with a channel at 255 (lower bounds).
+    pub censored: usize,
+    /// Rows from vertex-lit materials (per-vertex colours).
+    pub vertex_rows: usize,
+    /// Lightmapped triangles whose footprint holds no texel centre (slivers).
+    pub triangles_without_luxel: usize,
+    /// Lightmapped triangles refused: degenerate or absurd lightmap UVs.
+    pub triangles_refused: usize,
+}
+
+/// The luxel-space problem and where its rows came from.
+#[derive(Debug, Clone)]
+pub struct Luxels {
+    /// Luxel rows first (`0..texels.len()`), then the vertex-lit rows.
+    pub problem: Problem,
+    /// Texture index and texel `(x, y)` of each luxel row.
+    pub texels: Vec<[u32; 3]>,
+    pub stats: LuxelStats,
+}
+
+/// Builds the problem: luxel rows for lightmapped triangles, and the rows of `vertex_target`
+/// (a per-vertex projection of the same mesh) for vertex-lit materials.
+pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxels {
+    let mesh = &scene.mesh;
+    let mut pb = Problem::empty(scene_diagonal);
+    let mut st = LuxelStats::default();
+    let mut texels = Vec::new();
+    // Which texels are taken, per lightmap texture (allocated for lightmaps only).
+    let mut claimed: Vec<Option<Vec<bool>>> = vec![None; scene.textures.len()];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let mat = &scene.materials[mesh.tri_material[t] as usize];
+        if mat.lighting != Lighting::Lightmap {
+            continue;
+        }
+        let Some(lm_index) = mat.lightmap else { continue };
+        let lm = &scene.textures[lm_index];
+        let (w, h) = (lm.width as usize, lm.height as usize);
+        let taken = claimed[lm_index].get_or_insert_with(|| vec![false; w * h]);
+        let tri = tri.map(|i| i as usize);
+        let size = DVec2::new(w as f64, h as f64);
+        let p = tri.map(|v| mesh.uv1[v].as_dvec2() * size);
+        let e1 = p[1] - p[0];
+        let e2 = p[2] - p[0];
+        let det = e1.perp_dot(e2);
+        let uv_area = 0.5 * det.abs();
+        let world_area = mesh.triangle_area(t) as f64;
+        if !(uv_area > 1e-12) || !(uv_area <= MAX_TEXELS_PER_TRIANGLE) || !(world_area > 0.0) || !world_area.is_finite() {
+            st.triangles_refused += 1;
+            continue;
+        }
+        let texel_area = (world_area / uv_area) as f32;
+        let lo = p[0].min(p[1]).min(p[2]);
+        let hi = p[0].max(p[1]).max(p[2]);
+        // Texel x has its centre at x + 0.5.
+        let x0 = ((lo.x - 0.5).ceil().max(0.0)) as usize;
+        let y0 = ((lo.y - 0.5).ceil().max(0.0)) as usize;
+        let x1 = ((hi.x - 0.5).floor().min(w as f64 - 1.0)).max(-1.0) as i64;
+        let y1 = ((hi.y - 0.5).floor().min(h as f64 - 1.0)).max(-1.0) as i64;
+        let [pa, pb_, pc] = tri.map(|v| mesh.positions[v]);
+        let [na, nb, nc] = tri.map(|v| mesh.normals[v]);
+        let [ua, ub, uc] = tri.map(|v| mesh.uv0[v]);
+        let face_normal = (pb_ - pa).cross(pc - pa).try_normalize().unwrap_or(Vec3::Z);
+        let bary = |c: DVec2| -> [f64; 3] {
+            let d = c - p[0];
+            let b1 = d.perp_dot(e2) / det;
+            let b2 = e1.perp_dot(d) / det;
+            [1.0 - b1 - b2, b1, b2]
+        };
+        let mut found = false;
+        for y in y0 as i64..=y1 {
+            for x in x0 as i64..=x1 {
+                let (x, y) = (x as usize, y as usize);
+                let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                let b = bary(c);
+                if b.iter().any(|&v| v < -EDGE_TOLERANCE) {
+                    continue;
+                }
+                found = true;
+                if taken[y * w + x] {
+                    continue;
+                }
+                taken[y * w + x] = true;
+                let bf = b.map(|v| v as f32);
+                let pos = pa * bf[0] + pb_ * bf[1] + pc * bf[2];
+                let normal = (na * bf[0] + nb * bf[1] + nc * bf[2]).try_normalize().unwrap_or(face_normal);
+                // Albedo: mean over the texel's square, mapped affinely to TEXCOORD_0.
+                let mut alb = [0.0f32; 3];
+                let k = ALBEDO_SAMPLES;
+                for sy in 0..k {
+                    for sx in 0..k {
+                        let s = DVec2::new(x as f64 + (sx as f64 + 0.5) / k as f64, y as f64 + (sy as f64 + 0.5) / k as f64);
+                        let q = bary(s).map(|v| v as f32);
+                        let uv: Vec2 = ua * q[0] + ub * q[1] + uc * q[2];
+                        let a = match mat.albedo {
+                            Some(i) => texel::bilinear(&scene.textures[i], uv.x, uv.y, texel::srgb_to_linear),
+                            None => [1.0; 3],
+                        };
+                        for ch in 0..3 {
+                            alb[ch] += a[ch];
+                        }
+                    }
+                }
+                let f = mat.albedo_factor;
+                let albedo = [0, 1, 2].map(|ch| alb[ch] / (k * k) as f32 * f[ch]);
+                let o = (y * w + x) * 4;
+                let bytes = [lm.rgba8[o], lm.rgba8[o + 1], lm.rgba8[o + 2]];
+                let value = [0, 1, 2].map(|ch| albedo[ch] * mat.decode(bytes[ch] as f32 / 255.0));
+                let censored = bytes.iter().any(|&v| v >= CENSOR_BYTE);
+                if !pos.is_finite() || !value.iter().all(|v| v.is_finite()) {
+                    continue;
+                }
+                if censored {
+                    st.censored += 1;
+                    pb.push(u32::MAX, pos, normal, albedo, [0.0; 3], [0.0; 3], value, texel_area);
+                } else {
+                    pb.push(u32::MAX, pos, normal, albedo, value, [1.0; 3], [0.0; 3], texel_area);
+                }
+                texels.push([lm_index as u32, x as u32, y as u32]);
+                st.luxels += 1;
+            }
+        }
+        if !found {
+            st.triangles_without_luxel += 1;
+        }
+    }
+    for v in 0..mesh.positions.len() {
+        let mat = &scene.materials[mesh.v_material[v] as usize];
+        if mat.lighting != Lighting::Vertex || !(vertex_target.area[v] > 0.0) {
+            continue;
+        }
+        let has = (0..3).any(|c| vertex_target.weight[v][c] > 0.0 || vertex_target.lower[v][c] > 0.0);
+        if has {
+            let t = vertex_target;
+            pb.push(v as u32, mesh.positions[v], mesh.normals[v], t.albedo[v], t.value[v], t.weight[v], t.lower[v], t.area[v]);
+            st.vertex_rows += 1;
+        }
+    }
+    pb.finish();
+    Luxels { problem: pb, texels, stats: st }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Material, Mesh, Texture, Wrap};
+
+    /// A 2 m x 1 m floor quad (y = 0, normal +y) whose lightmap coordinates put its corners
+    /// on the centres of texels (1, 2) and (9, 6) of a 16 x 8 lightmap, as q3map2 does: 9 x 5
+    /// luxels, 0.25 m apart.
+    fn floor_scene() -> Scene {
+        let (w, h) = (16u32, 8u32);
+        let mut lm = vec![0u8; (w * h * 4) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let o = ((y * w + x) * 4) as usize;
+                lm[o..o + 4].copy_from_slice(&[(10 * x) as u8, (20 * y) as u8, 7, 255]);
+            }
+        }
+        // One censored texel.
+        let o = ((3 * w + 4) * 4) as usize;
+        lm[o] = 255;
+        let tex = Texture { width: w, height: h, rgba8: lm, wrap_s: Wrap::Clamp, wrap_t: Wrap::Clamp };
+        let mut m = Mesh::default();
+        let corners = [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (0.0, 1.0)];
+        for (x, z) in corners {
+            m.positions.push(Vec3::new(x, 0.0, z));
+            m.normals.push(Vec3::Y);
+            m.uv0.push(Vec2::ZERO);
+            m.uv1.push(Vec2::new((1.5 + 4.0 * x) / w as f32, (2.5 + 4.0 * z) / h as f32));
+            m.colors.push([1.0; 3]);
+            m.v_material.push(0);
+        }
+        m.triangles = vec![[0, 1, 2], [0, 2, 3]];
+        m.tri_material = vec![0, 0];
+        m.tri_source = vec![0, 1];
+        m.reweld();
+        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0 };
+        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() }
+    }
+
+    #[test]
+    fn every_covered_texel_is_one_row_at_its_sample_point() {
+        let scene = floor_scene();
+        let lx = problem(&scene, &Target::empty(4), 3.0);
+        let pb = &lx.problem;
+        assert_eq!(lx.stats.luxels, 45, "9 x 5 texel centres lie on the quad (edges included, the diagonal shared)");
+        assert_eq!(pb.len(), 45);
+        assert_eq!(lx.stats.censored, 1);
+        let total: f32 = pb.area.iter().sum();
+        // 45 luxels of 1/16 m^2 each: the quad's 2 m^2 plus its half-texel rim.
+        assert!((total - 45.0 / 16.0).abs() < 1e-4, "area {total}");
+        for (i, &[tex, x, y]) in lx.texels.iter().enumerate() {
+            assert_eq!(tex, 0);
+            // Texel (x, y) samples the point 0.25 m per texel from the corner at texel (1, 2).
+            let want = Vec3::new((x as f32 - 1.0) * 0.25, 0.0, (y as f32 - 2.0) * 0.25);
+            assert!((pb.pos[i] - want).length() < 1e-5, "texel ({x}, {y}) at {:?}, expected {want:?}", pb.pos[i]);
+            assert_eq!(pb.normal[i], Vec3::Y);
+            assert_eq!(pb.albedo[i], [0.5, 0.25, 1.0]);
+            // decode(b) = b / 255 * 4 (overbright 2), times the albedo.
+            let e = [10.0 * x as f32, 20.0 * y as f32, 7.0].map(|b| b / 255.0 * 4.0);
+            if (x, y) == (4, 3) {
+                assert_eq!(pb.weight[i], [0.0; 3], "a texel with a channel at 255 is a lower bound");
+                assert!((pb.lower[i][1] - 0.25 * e[1]).abs() < 1e-6);
+            } else {
+                assert_eq!(pb.weight[i], [1.0; 3]);
+                for c in 0..3 {
+                    assert!((pb.target[i][c] - pb.albedo[i][c] * e[c]).abs() < 1e-6, "texel ({x}, {y}) channel {c}");
+                }
+            }
+        }
+        let mut seen = lx.texels.clone();
+        seen.sort();
+        seen.dedup();
+        assert_eq!(seen.len(), 45, "no texel is claimed twice");
+    }
+
+    #[test]
+    fn degenerate_or_absurd_lightmap_coordinates_are_refused() {
+        let mut scene = floor_scene();
+        // Triangle 0 collapses in lightmap space; triangle 1 spans 10^8 texels.
+        let uv = scene.mesh.uv1[0];
+        scene.mesh.uv1[1] = uv;
+        scene.mesh.uv1[3] = Vec2::new(-1e5, 1e5);
+        let lx = problem(&scene, &Target::empty(4), 3.0);
+        assert_eq!(lx.stats.triangles_refused, 2);
+        assert_eq!(lx.problem.len(), 0);
+    }
+}
