@@ -336,3 +336,45 @@ fn synthetic_ground_truth_is_recovered() {
     let err = r["rel_error_final"].as_f64().unwrap();
     assert!(err < 0.01, "relative error {err}");
 }
+
+/// The output is self-contained wherever it is written: a `.gltf` in another folder gets
+/// copies of the textures and buffer (no `../` URI, which relight's reader refuses), a `.glb`
+/// embeds everything; both can be relit again from there, and the copies are the input's
+/// bytes.
+#[test]
+fn outputs_in_another_folder_are_self_contained() {
+    let dir = tmp("elsewhere");
+    let gltf = convert_sample(&dir);
+    let away = dir.join("away/deeper");
+    std::fs::create_dir_all(&away).unwrap();
+    let input_json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    for ext in ["gltf", "glb"] {
+        let out = away.join(format!("relit.{ext}"));
+        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--scheme", "fast", "-q"]);
+        let doc = gltf::Gltf::open(&out).expect("the output parses");
+        let uris: Vec<String> = doc.images().filter_map(|i| match i.source() {
+            gltf::image::Source::Uri { uri, .. } => Some(uri.to_string()),
+            _ => None,
+        }).chain(doc.buffers().filter_map(|b| match b.source() {
+            gltf::buffer::Source::Uri(u) => Some(u.to_string()),
+            _ => None,
+        })).collect();
+        if ext == "glb" {
+            assert!(uris.is_empty(), "the .glb still references files: {uris:?}");
+        } else {
+            assert!(!uris.is_empty());
+            for u in &uris {
+                assert!(!u.contains(".."), "{u}");
+                assert!(away.join(u).is_file(), "{u} was not copied beside the output");
+            }
+            // Each image copy holds the input's bytes.
+            for (k, img) in input_json["images"].as_array().unwrap().iter().enumerate() {
+                let u = img["uri"].as_str().unwrap();
+                assert_eq!(std::fs::read(dir.join(u)).unwrap(), std::fs::read(away.join(u)).unwrap(), "image {k}");
+            }
+        }
+        // Relight reads its own output from there.
+        let again = away.join(format!("again.{ext}"));
+        run(&["relight", out.to_str().unwrap(), "-o", again.to_str().unwrap(), "--init", "input", "--backend", "cpu", "--scheme", "fast", "-q"]);
+    }
+}

@@ -5,10 +5,15 @@
 //! survives. Point lights of the input are replaced: with `--init input` each fitted light
 //! updates its own node and light entry (the node's local translation is solved from its
 //! parent's world matrix); other input point lights lose their light (the node stays, as
-//! an empty). New lights get new root nodes `light_000`, ... Containers: `.gltf` in and
-//! out rewrites relative URIs for the output's folder; `.glb` keeps its BIN chunk; `.glb`
-//! to `.gltf` writes the BIN chunk beside the output; `.gltf` to `.glb` embeds a single
-//! external buffer. Writes are atomic; the input is never overwritten.
+//! an empty). New lights get new root nodes `light_000`, ...
+//!
+//! Containers. The output is always self-contained in its own folder, so that relight
+//! (which reads only relative URIs inside the glTF's folder) and Blender can open it
+//! again: a `.glb` output embeds the first buffer and every external image in its BIN
+//! chunk; a `.gltf` output next to its input keeps the input's URIs; a `.gltf` output
+//! in another folder gets copies of the input's external files at the same relative
+//! paths (a `.glb` input's BIN chunk becomes `<output>.bin`). Data URIs stay as they are.
+//! Writes are atomic; the input is never overwritten.
 
 use std::path::{Component, Path, PathBuf};
 
@@ -77,38 +82,115 @@ fn is_glb(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb"))
 }
 
-/// `target` relative to folder `from` (both absolute), with `/` separators.
-fn relative(from: &Path, target: &Path) -> String {
-    let f: Vec<Component> = from.components().collect();
-    let t: Vec<Component> = target.components().collect();
-    let common = f.iter().zip(&t).take_while(|(a, b)| a == b).count();
-    let mut parts: Vec<String> = vec!["..".into(); f.len() - common];
-    parts.extend(t[common..].iter().map(|c| c.as_os_str().to_string_lossy().into_owned()));
-    parts.join("/")
-}
-
 fn abs_dir(p: &Path) -> PathBuf {
     let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf())
 }
 
-/// Rewrites the relative URIs of buffers and images so they resolve from `out_dir`.
-fn rebase_uris(json: &mut Value, in_dir: &Path, out_dir: &Path) {
-    if in_dir == out_dir {
-        return;
-    }
-    for key in ["buffers", "images"] {
-        let Some(arr) = json.get_mut(key).and_then(Value::as_array_mut) else { continue };
-        for item in arr {
-            let Some(uri) = item.get("uri").and_then(Value::as_str) else { continue };
-            if uri.starts_with("data:") || uri.contains("://") || uri.starts_with('/') {
-                continue;
-            }
-            let decoded = uri.replace("%20", " ");
-            let new = relative(out_dir, &in_dir.join(decoded)).replace(' ', "%20");
-            item["uri"] = Value::String(new);
+/// The file a relative URI names inside the glTF's folder: `%XX` decoded, `\` read as `/`;
+/// `None` for anything that could leave the folder (`..`, an absolute path, a drive letter
+/// or scheme, NUL) or a malformed escape. The same rules as the reader's.
+pub fn relative_uri_path(uri: &str) -> Option<PathBuf> {
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
         }
     }
+    let s = String::from_utf8(out).ok()?.replace('\\', "/");
+    if s.is_empty() || s.contains('\0') || s.contains(':') || s.starts_with('/') {
+        return None;
+    }
+    let p: PathBuf = s.split('/').filter(|c| !c.is_empty() && *c != ".").collect();
+    p.components().all(|c| matches!(c, Component::Normal(_))).then_some(p).filter(|p| p.components().next().is_some())
+}
+
+/// External (non-data) URIs of buffers and images: `(key, index, uri)`.
+fn external_uris(json: &Value) -> Vec<(&'static str, usize, String)> {
+    let mut out = Vec::new();
+    for key in ["buffers", "images"] {
+        let Some(arr) = json.get(key).and_then(Value::as_array) else { continue };
+        for (i, item) in arr.iter().enumerate() {
+            if let Some(uri) = item.get("uri").and_then(Value::as_str).filter(|u| !u.starts_with("data:")) {
+                out.push((key, i, uri.to_string()));
+            }
+        }
+    }
+    out
+}
+
+/// Reads the file an external URI of the input names.
+fn read_resource(input: &Path, in_dir: &Path, uri: &str) -> Result<(PathBuf, Vec<u8>)> {
+    let rel = relative_uri_path(uri).ok_or_else(|| Error::input(input, format!("refused URI {:?}: not a relative path inside the glTF's folder", uri.escape_debug().to_string())))?;
+    let p = in_dir.join(&rel);
+    let bytes = std::fs::read(&p).map_err(|e| Error::Io { path: p.display().to_string(), source: e })?;
+    Ok((rel, bytes))
+}
+
+/// GLB output: buffer 0 and every external image go into the BIN chunk.
+fn embed_resources(json: &mut Value, bin: &mut Option<Vec<u8>>, input: &Path, in_dir: &Path) -> Result<()> {
+    let mut data = bin.take().unwrap_or_default();
+    if let Some(uri) = json.pointer("/buffers/0/uri").and_then(Value::as_str).filter(|u| !u.starts_with("data:")).map(str::to_string) {
+        data = read_resource(input, in_dir, &uri)?.1;
+        json["buffers"][0].as_object_mut().map(|o| o.remove("uri"));
+    }
+    let images: Vec<(usize, String)> = external_uris(json).into_iter().filter(|e| e.0 == "images").map(|e| (e.1, e.2)).collect();
+    if images.is_empty() && data.is_empty() {
+        return Ok(());
+    }
+    for (i, uri) in images {
+        let (rel, bytes) = read_resource(input, in_dir, &uri)?;
+        let ext = rel.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        let mime = json["images"][i].get("mimeType").and_then(Value::as_str).map(str::to_string).or_else(|| match ext.as_str() {
+            "png" => Some("image/png".into()),
+            "jpg" | "jpeg" => Some("image/jpeg".into()),
+            _ => None,
+        });
+        // glTF allows only PNG and JPEG in buffer views; anything else stays beside the file.
+        let Some(mime) = mime else { continue };
+        data.resize(data.len().next_multiple_of(4), 0);
+        let views = json.as_object_mut().unwrap().entry("bufferViews").or_insert_with(|| json!([]));
+        let Some(views) = views.as_array_mut() else { return Err(Error::input(input, "bufferViews is not an array")) };
+        views.push(json!({ "buffer": 0, "byteOffset": data.len(), "byteLength": bytes.len() }));
+        let view = views.len() - 1;
+        data.extend_from_slice(&bytes);
+        let img = json["images"][i].as_object_mut().unwrap();
+        img.remove("uri");
+        img.insert("bufferView".into(), json!(view));
+        img.insert("mimeType".into(), json!(mime));
+    }
+    let buffers = json.as_object_mut().unwrap().entry("buffers").or_insert_with(|| json!([]));
+    let Some(buffers) = buffers.as_array_mut() else { return Err(Error::input(input, "buffers is not an array")) };
+    if buffers.is_empty() {
+        buffers.push(json!({}));
+    }
+    buffers[0]["byteLength"] = json!(data.len());
+    *bin = Some(data);
+    Ok(())
+}
+
+/// `.gltf` output in another folder: the input's external files are copied beside it,
+/// at the same relative paths.
+fn copy_resources(json: &Value, input: &Path, in_dir: &Path, out_dir: &Path) -> Result<()> {
+    for (_, _, uri) in external_uris(json) {
+        let (rel, bytes) = read_resource(input, in_dir, &uri)?;
+        let dest = out_dir.join(&rel);
+        if q3gltf_convert::output::same_file(&dest, input) {
+            return Err(Error::Usage(format!("{}: copying {uri:?} there would overwrite the input", dest.display())));
+        }
+        if let Some(parent) = dest.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| Error::Io { path: parent.display().to_string(), source: e })?;
+        }
+        q3gltf_convert::output::write_atomic(&dest, &bytes).map_err(|e| Error::Io { path: dest.display().to_string(), source: e })?;
+    }
+    Ok(())
 }
 
 fn light_json(l: &OutLight) -> Value {
@@ -238,29 +320,21 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Val
     let (in_dir, out_dir) = (abs_dir(input), abs_dir(output));
     let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), source: e };
     let mut bin = bin;
-    match (is_glb(input), is_glb(output)) {
-        (false, false) => rebase_uris(&mut json, &in_dir, &out_dir),
-        (true, true) => rebase_uris(&mut json, &in_dir, &out_dir),
-        (true, false) => {
-            rebase_uris(&mut json, &in_dir, &out_dir);
-            if let Some(b) = bin.take() {
-                let bin_path = output.with_extension("bin");
-                q3gltf_convert::output::write_atomic(&bin_path, &b).map_err(|e| io_err(&bin_path, e))?;
-                let name = bin_path.file_name().unwrap().to_string_lossy().replace(' ', "%20");
-                if let Some(b0) = json.get_mut("buffers").and_then(|b| b.get_mut(0)) {
-                    b0["uri"] = json!(name);
-                }
-            }
+    if is_glb(output) {
+        embed_resources(&mut json, &mut bin, input, &in_dir)?;
+    } else {
+        if in_dir != out_dir {
+            copy_resources(&json, input, &in_dir, &out_dir)?;
         }
-        (false, true) => {
-            rebase_uris(&mut json, &in_dir, &out_dir);
-            let bufs = json.get("buffers").and_then(Value::as_array).map_or(0, Vec::len);
-            if bufs == 1 {
-                if let Some(uri) = json["buffers"][0].get("uri").and_then(Value::as_str).filter(|u| !u.starts_with("data:")) {
-                    let p = out_dir.join(uri.replace("%20", " "));
-                    bin = Some(std::fs::read(&p).map_err(|e| io_err(&p, e))?);
-                    json["buffers"][0].as_object_mut().unwrap().remove("uri");
-                }
+        if let Some(b) = bin.take() {
+            let bin_path = output.with_extension("bin");
+            if q3gltf_convert::output::same_file(&bin_path, input) {
+                return Err(Error::Usage(format!("{}: the buffer would overwrite the input", bin_path.display())));
+            }
+            q3gltf_convert::output::write_atomic(&bin_path, &b).map_err(|e| io_err(&bin_path, e))?;
+            let name = bin_path.file_name().unwrap().to_string_lossy().replace('%', "%25").replace(' ', "%20");
+            if let Some(b0) = json.get_mut("buffers").and_then(|b| b.get_mut(0)) {
+                b0["uri"] = json!(name);
             }
         }
     }

@@ -1,6 +1,7 @@
 """The Khronos glTF-Validator accepts what `q3gltf relight` writes: the bundled sample
-(converted, then relit, as .gltf and .glb) and a real map (oa_dm1, small budget, on
-whatever wgpu adapter the machine has: lavapipe in CI)."""
+(converted, then relit, as .gltf and .glb, beside the input and in another folder) and a
+real map (oa_dm1, small budget, on whatever wgpu adapter the machine has: lavapipe in
+CI)."""
 from __future__ import annotations
 
 import json
@@ -25,12 +26,14 @@ def test_relit_outputs_are_valid(q3gltf, baseoa, node_validator, tmp_path):
     sample = tmp_path / "sample.gltf"
     _run(str(q3gltf), "convert", str(REPO / "samples/sample/maps/sample.bsp"), "-q", "-o", str(sample))
     outs = []
-    for ext in ("gltf", "glb"):
-        # Beside the input: a .gltf elsewhere would reference the input's .bin and textures
-        # through "../", which validate.mjs refuses on principle.
-        out = tmp_path / f"sample.relit.{ext}"
-        _run(str(q3gltf), "relight", str(sample), "-o", str(out), "--backend", "cpu", "--scheme", "fast", "-q")
-        outs.append(out)
+    for folder in (tmp_path, tmp_path / "elsewhere"):
+        # In another folder the output is self-contained (copies of the textures and the
+        # buffer, or everything embedded in the .glb): validate.mjs refuses "../" URIs.
+        folder.mkdir(exist_ok=True)
+        for ext in ("gltf", "glb"):
+            out = folder / f"sample.relit.{ext}"
+            _run(str(q3gltf), "relight", str(sample), "-o", str(out), "--backend", "cpu", "--scheme", "fast", "-q")
+            outs.append(out)
     dm1 = tmp_path / "oa_dm1.glb"
     _run(str(q3gltf), "convert", "oa_dm1", "--game-dir", str(baseoa), "-q", "-o", str(dm1))
     dm1_out = tmp_path / "oa_dm1.relit.glb"
