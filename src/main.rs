@@ -35,11 +35,16 @@ enum Command {
     /// Estimate point lights whose direct lighting reproduces a converted scene's baked
     /// lightmaps, and write the scene with them as KHR_lights_punctual lights.
     ///
-    /// Target: per vertex, the mass-lumped L2 projection of albedo x lightmap (lightmap
-    /// bytes decoded as e = byte * 2^overbright / 255). Model: Lambertian albedo * E / pi
-    /// from point lights of intensity I [W/sr] with shadow rays; written as candela
-    /// (683 * I). Prints the error reached, the lights and the time of each stage.
+    /// Target: albedo x lightmap (bytes decoded as e = byte * 2^overbright / 255) at
+    /// every lightmap texel's surface point (`--target luxel`), or its mass-lumped L2
+    /// projection onto the vertices (`--target vertex`, the thesis). Model: Lambertian
+    /// albedo * E / pi from point lights of intensity I [W/sr] with shadow rays; written
+    /// as candela (683 * I). Prints the error reached, the lights and the time of each stage.
     Relight(relight_cmd::RelightArgs),
+    /// Print, as JSON, the irradiance that a scene's own point lights give at one surface
+    /// point (relight's forward model, with shadow rays through the scene): for checking
+    /// units against a renderer.
+    Probe(relight_cmd::ProbeArgs),
 }
 
 #[derive(Args)]
@@ -122,6 +127,13 @@ fn main() -> ExitCode {
         Command::Convert(a) => run_convert(a),
         Command::Info(a) => run_info(a),
         Command::Maps(a) => run_maps(a),
+        Command::Probe(a) => match relight_cmd::probe(a) {
+            Ok(()) => return ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("q3gltf: error: {e}");
+                return ExitCode::from(1);
+            }
+        },
         Command::Relight(a) => match relight_cmd::run(a) {
             Ok(()) => return ExitCode::SUCCESS,
             Err(e) => {

@@ -72,6 +72,32 @@ pub struct RelightArgs {
     pub quiet: bool,
 }
 
+#[derive(Args)]
+pub struct ProbeArgs {
+    /// Scene (.gltf or .glb) with KHR_lights_punctual point lights.
+    pub input: PathBuf,
+    /// Surface point, world meters (glTF axes): X,Y,Z.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    pub at: String,
+    /// Surface normal (any length): X,Y,Z.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    pub normal: String,
+}
+
+fn vec3(s: &str, what: &str) -> Result<glam::DVec3, String> {
+    let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| format!("{what} {s:?}: {e}"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(glam::DVec3::new(x, y, z)),
+        _ => Err(format!("{what} {s:?}: expected three finite numbers X,Y,Z")),
+    }
+}
+
+pub fn probe(a: ProbeArgs) -> Result<(), String> {
+    let p = q3gltf_relight::probe::probe(&a.input, vec3(&a.at, "--at")?, vec3(&a.normal, "--normal")?).map_err(|e| e.to_string())?;
+    println!("{}", serde_json::to_string_pretty(&p).map_err(|e| e.to_string())?);
+    Ok(())
+}
+
 struct Bars {
     quiet: bool,
     bar: std::cell::RefCell<Option<indicatif::ProgressBar>>,

@@ -378,3 +378,46 @@ fn outputs_in_another_folder_are_self_contained() {
         run(&["relight", out.to_str().unwrap(), "-o", again.to_str().unwrap(), "--init", "input", "--backend", "cpu", "--scheme", "fast", "-q"]);
     }
 }
+
+/// `q3gltf probe`: the model's irradiance for a file's own lights at one point, in the
+/// units of CONVENTIONS.md (cd / 683 = W/sr; E = I cos / d^2 where visible).
+#[test]
+fn probe_reports_the_irradiance_of_the_files_lights() {
+    let dir = tmp("probe");
+    let gltf = convert_sample(&dir);
+    // One white light of 10 W/sr (6830 cd) at the first entity light's place.
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    let p = sample_truth()[0].0;
+    json["extensions"]["KHR_lights_punctual"] = serde_json::json!({ "lights": [{ "type": "point", "color": [1.0, 1.0, 1.0], "intensity": 6830.0 }] });
+    let nodes = json["nodes"].as_array_mut().unwrap();
+    for n in nodes.iter_mut() {
+        n.as_object_mut().unwrap().remove("extensions");
+    }
+    nodes.push(serde_json::json!({ "name": "lamp", "translation": p, "extensions": { "KHR_lights_punctual": { "light": 0 } } }));
+    let k = nodes.len() - 1;
+    json["scenes"][0]["nodes"].as_array_mut().unwrap().push(k.into());
+    let one = dir.join("one.gltf");
+    std::fs::write(&one, serde_json::to_vec(&json).unwrap()).unwrap();
+    let probe = |at: [f64; 3], n: &str| -> Value {
+        let at = format!("{},{},{}", at[0], at[1], at[2]);
+        serde_json::from_str(&run(&["probe", one.to_str().unwrap(), "--at", &at, "--normal", n])).unwrap()
+    };
+    // 1 m below, facing up: E = I = 10 W/m^2; radiance of white = 10 / pi.
+    let r = probe([p[0], p[1] - 1.0, p[2]], "0,1,0");
+    for c in 0..3 {
+        assert!((r["irradiance"][c].as_f64().unwrap() - 10.0).abs() < 1e-4, "{r}");
+        assert!((r["radiance_white"][c].as_f64().unwrap() - 10.0 / std::f64::consts::PI).abs() < 1e-4, "{r}");
+    }
+    // 2 m below and 2 m aside, tilted normal: E = I cos / d^2 with cos = 2 / sqrt(8).
+    let r = probe([p[0] + 2.0, p[1] - 2.0, p[2]], "0,1,0");
+    let want = 10.0 * (2.0 / 8f64.sqrt()) / 8.0;
+    assert!((r["irradiance"][0].as_f64().unwrap() - want).abs() < 1e-4, "{r} vs {want}");
+    // Facing away: nothing.
+    let r = probe([p[0], p[1] - 1.0, p[2]], "0,-1,0");
+    assert_eq!(r["irradiance"][0].as_f64().unwrap(), 0.0);
+    assert_eq!(r["lights"], 1);
+    // Bad arguments: a clear error, no panic.
+    let st = Command::new(bin()).args(["probe", one.to_str().unwrap(), "--at", "1,2", "--normal", "0,1,0"]).output().unwrap();
+    assert!(!st.status.success());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("--at"));
+}

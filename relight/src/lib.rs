@@ -22,6 +22,7 @@ pub mod model;
 pub mod optim;
 pub mod pipeline;
 pub mod ply;
+pub mod probe;
 pub mod report;
 pub mod scene;
 pub mod schemes;
