@@ -4,7 +4,10 @@
 #                        out/sample.relit.gltf (+ .report.json, .curve.png)
 #   make MAP=oa_dm1      fetch OpenArena (cached), convert that map and relight it likewise
 #   make maps            convert every map of the game data to out/maps/*.glb (use -j)
-#   make test            the whole test suite (Rust and Python/Node checkers)
+#   make test            the whole test suite (Rust and Python/Node checkers, Blender)
+#   make test-blender    the Blender round trip (bpy==5.0.1 in .venv-blender, headless)
+#   make render          Cycles renders of relit RENDER_MAP (oa_dm1) and of its lightmaps,
+#                        from a spawn point, in out/render/ (relit.png, lightmap.png, small/)
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
 #                        relight of the sample and oa_dm1 (out/bench/relight.md)
 #   make sample          regenerate the bundled sample from samples/src (committed)
@@ -20,9 +23,13 @@ PYTHON     ?= python3
 CONVERT_FLAGS ?= --entity-lights
 RELIGHT_FLAGS ?=
 FETCH      := samples/fetch-openarena.sh
+BLENDER_VENV := .venv-blender
+RENDER_MAP ?= oa_dm1
+RENDER_FLAGS ?=
 SAMPLE_BSP := samples/sample/maps/sample.bsp
 
 .PHONY: all build sample test test-rust test-python python-deps node-deps maps bench clean data
+.PHONY: test-blender blender-deps render
 .DELETE_ON_ERROR:
 
 ifeq ($(MAP),)
@@ -70,16 +77,32 @@ tests/node/node_modules/.stamp: tests/node/package.json tests/node/package-lock.
 	cd tests/node && npm ci --silent --no-audit --no-fund
 	@touch $@
 
+# Blender as a Python module (about 1 GB installed): its own venv, so .venv stays small.
+$(BLENDER_VENV)/.stamp: tests/blender/requirements.txt
+	$(PYTHON) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/pip install -q -r tests/blender/requirements.txt
+	@touch $@
+
 python-deps: $(VENV)/.stamp
+blender-deps: $(BLENDER_VENV)/.stamp
 node-deps: tests/node/node_modules/.stamp
 
-test: test-rust test-python
+test: test-rust test-python test-blender
 
 test-rust: build data
 	$(CARGO) test --release --workspace
 
 test-python: build data python-deps node-deps
 	Q3GLTF_BIN=$(BIN) $(VENV)/bin/python -m pytest tests/python -q -p no:cacheprovider
+
+test-blender: build data blender-deps node-deps
+	Q3GLTF_BIN=$(BIN) $(BLENDER_VENV)/bin/python -m pytest tests/blender -q -p no:cacheprovider
+
+render: build data blender-deps
+	@mkdir -p $(OUT)/render
+	$(BIN) convert $(RENDER_MAP) --game-dir "$${GAME_DIR:-$$(bash $(FETCH))}" -q -o $(OUT)/render/$(RENDER_MAP).gltf
+	$(BIN) relight $(OUT)/render/$(RENDER_MAP).gltf -o $(OUT)/render/$(RENDER_MAP).relit.gltf -q --report $(OUT)/render/$(RENDER_MAP).report.json $(RELIGHT_FLAGS)
+	$(BLENDER_VENV)/bin/python tools/blender/render.py --relit $(OUT)/render/$(RENDER_MAP).relit.gltf --original $(OUT)/render/$(RENDER_MAP).gltf --out $(OUT)/render --small 480 $(RENDER_FLAGS)
 
 bench: build data
 	$(CARGO) bench --bench convert
