@@ -103,6 +103,6 @@ def edited(bpy, dm1_relit, workdir):
     done["paths"] = {}
     for variant, extra in VARIANTS.items():
         path = workdir / f"edited.{variant}.glb"
-        bpy.ops.export_scene.gltf(filepath=str(path), export_lights=True, **extra)
+        bpy.ops.export_scene.gltf(filepath=str(path), **{"export_lights": True, **extra})
         done["paths"][variant] = path
     return done

@@ -39,9 +39,10 @@ def reset_blender(bpy) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
-def import_gltf(bpy, path: Path) -> None:
+def import_gltf(bpy, path: Path, **options) -> None:
+    """A fresh scene with the file imported (Blender's default import options unless given)."""
     reset_blender(bpy)
-    bpy.ops.import_scene.gltf(filepath=str(path))
+    bpy.ops.import_scene.gltf(filepath=str(path), **options)
 
 
 def gltf_to_blender(p) -> tuple[float, float, float]:
