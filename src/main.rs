@@ -122,6 +122,8 @@ fn source_of(map: &str) -> MapSource {
 }
 
 fn main() -> ExitCode {
+    // An interrupted run removes its temporary files and leaves no partial output.
+    q3gltf_convert::output::remove_temporaries_on_signal();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Convert(a) => run_convert(a),

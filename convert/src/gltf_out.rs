@@ -8,7 +8,7 @@
 //! output directory. Every file is written atomically; the `.gltf` is renamed into place
 //! last, after the files it refers to. The JSON is a pure function of the scene.
 
-use crate::output::{sanitize_relative, write_atomic};
+use crate::output::{sanitize_relative, Staged};
 use crate::scene::{AlphaMode, LightKind, Sampling, Scene};
 use gltf_json as json;
 use json::validation::Checked::Valid;
@@ -366,40 +366,27 @@ pub fn to_glb(scene: &Scene, opts: &WriteOptions) -> Vec<u8> {
     out
 }
 
-/// Writes the scene to `path` (`.gltf` or `.glb`), atomically.
+/// Writes the scene to `path` (`.gltf` or `.glb`), atomically: every file is staged
+/// under a temporary name first and the batch is renamed into place with the `.gltf`
+/// last (see [`crate::output::Staged`]); on an error nothing is left behind.
 pub fn write(scene: &Scene, path: &Path, opts: &WriteOptions) -> std::io::Result<Written> {
     let container = Container::from_path(path).ok_or_else(|| {
         std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{}: output must end in .gltf or .glb", path.display()))
     })?;
-    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
-    }
+    let mut staged = Staged::new();
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
+    staged.create_dir_all(&dir)?;
     match container {
         Container::Glb => {
             let bytes = to_glb(scene, opts);
-            write_atomic(path, &bytes)?;
+            staged.add(path, &bytes)?;
+            staged.commit()?;
             Ok(Written { files: vec![path.to_path_buf()], bytes: bytes.len() as u64 })
         }
         Container::Gltf => {
-            let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_path_buf();
-            let stem = sanitize_relative(&path.file_stem().unwrap_or_default().to_string_lossy()).to_string_lossy().replace('/', "_");
+            let stem = sanitize_relative(&path.file_stem().unwrap_or_default().to_string_lossy()).to_string_lossy().replace(['/', '\\'], "_");
             let tex_dir = format!("{stem}_textures");
-            // Unique, sanitised image paths (collisions get a numeric suffix).
-            let mut taken = BTreeSet::new();
-            let uris: Vec<String> = scene
-                .images
-                .iter()
-                .map(|img| {
-                    let base = sanitize_relative(&img.name).to_string_lossy().replace('\\', "/");
-                    let mut uri = format!("{tex_dir}/{base}.{}", img.extension());
-                    let mut k = 1;
-                    while !taken.insert(uri.clone()) {
-                        uri = format!("{tex_dir}/{base}_{k}.{}", img.extension());
-                        k += 1;
-                    }
-                    uri
-                })
-                .collect();
+            let uris = image_uris(scene, &tex_dir);
             let bin_name = format!("{stem}.bin");
             let (root, bin) = build(scene, opts, Some(&uris), Some(bin_name.clone()));
             let mut files = Vec::new();
@@ -407,23 +394,44 @@ pub fn write(scene: &Scene, path: &Path, opts: &WriteOptions) -> std::io::Result
             for (img, uri) in scene.images.iter().zip(&uris) {
                 let p = dir.join(uri);
                 if let Some(d) = p.parent() {
-                    std::fs::create_dir_all(d)?;
+                    staged.create_dir_all(d)?;
                 }
-                write_atomic(&p, &img.bytes)?;
+                staged.add(&p, &img.bytes)?;
                 bytes += img.bytes.len() as u64;
                 files.push(p);
             }
             if !bin.is_empty() {
                 let p = dir.join(&bin_name);
-                write_atomic(&p, &bin)?;
+                staged.add(&p, &bin)?;
                 bytes += bin.len() as u64;
                 files.push(p);
             }
             let js = to_json_bytes(&root);
-            write_atomic(path, &js)?;
+            staged.add(path, &js)?;
             bytes += js.len() as u64;
             files.push(path.to_path_buf());
+            staged.commit()?;
             Ok(Written { files, bytes })
         }
     }
+}
+
+/// Relative URIs of the images of a `.gltf` output: `<tex_dir>/<sanitised name>.<ext>`,
+/// unique (a collision gets `_1`, `_2`, ... in image order), so deterministic.
+pub fn image_uris(scene: &Scene, tex_dir: &str) -> Vec<String> {
+    let mut taken = BTreeSet::new();
+    scene
+        .images
+        .iter()
+        .map(|img| {
+            let base = sanitize_relative(&img.name).to_string_lossy().replace('\\', "/");
+            let mut uri = format!("{tex_dir}/{base}.{}", img.extension());
+            let mut k = 1;
+            while !taken.insert(uri.clone()) {
+                uri = format!("{tex_dir}/{base}_{k}.{}", img.extension());
+                k += 1;
+            }
+            uri
+        })
+        .collect()
 }

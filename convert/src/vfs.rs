@@ -73,9 +73,34 @@ fn read_at(f: &File, buf: &mut [u8], pos: u64) -> io::Result<usize> {
     std::os::windows::fs::FileExt::seek_read(f, buf, pos)
 }
 
+/// What an archive is read from: a file on disk, or bytes in memory (tests, fuzzing).
+#[derive(Clone)]
+enum ArchiveReader {
+    File(SharedFile),
+    Memory(io::Cursor<Arc<[u8]>>),
+}
+
+impl Read for ArchiveReader {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            ArchiveReader::File(f) => f.read(buf),
+            ArchiveReader::Memory(c) => c.read(buf),
+        }
+    }
+}
+
+impl Seek for ArchiveReader {
+    fn seek(&mut self, to: SeekFrom) -> io::Result<u64> {
+        match self {
+            ArchiveReader::File(f) => f.seek(to),
+            ArchiveReader::Memory(c) => c.seek(to),
+        }
+    }
+}
+
 struct Archive {
     path: PathBuf,
-    zip: zip::ZipArchive<SharedFile>,
+    zip: zip::ZipArchive<ArchiveReader>,
 }
 
 #[derive(Clone)]
@@ -192,26 +217,40 @@ impl Vfs {
         let shown = path.display().to_string();
         let file = File::open(path).map_err(|source| VfsError::Io { path: shown.clone(), source })?;
         let len = file.metadata().map_err(|source| VfsError::Io { path: shown.clone(), source })?.len();
-        let reader = SharedFile { file: Arc::new(file), pos: 0, len };
+        self.mount_archive(path, ArchiveReader::File(SharedFile { file: Arc::new(file), pos: 0, len }))
+    }
+
+    /// Mounts a `.pk3` archive held in memory, under the display name `name` (same rules
+    /// as [`Vfs::mount_pk3`]; used by tests and the fuzz targets).
+    pub fn mount_pk3_bytes(&mut self, name: &str, bytes: impl Into<Arc<[u8]>>) -> Result<(), VfsError> {
+        self.mount_archive(Path::new(name), ArchiveReader::Memory(io::Cursor::new(bytes.into())))
+    }
+
+    fn mount_archive(&mut self, path: &Path, reader: ArchiveReader) -> Result<(), VfsError> {
+        let shown = path.display().to_string();
         let mut zip = zip::ZipArchive::new(reader).map_err(|e| VfsError::Archive { path: shown.clone(), msg: e.to_string() })?;
         let archive = self.archives.len();
         // Entries in central-directory order; a later duplicate inside one archive wins.
+        // Nothing is mounted until the whole directory has been checked, so a refused
+        // archive leaves the file system as it was.
+        let mut mounted = Vec::new();
+        let mut rejected = Vec::new();
         for index in 0..zip.len() {
             let f = zip.by_index_raw(index).map_err(|e| VfsError::Archive { path: shown.clone(), msg: e.to_string() })?;
-            if f.is_dir() {
-                continue;
-            }
             let raw = String::from_utf8_lossy(f.name_raw()).into_owned();
             if is_hostile(&raw) {
                 return Err(VfsError::Archive { path: shown, msg: format!("unsafe entry name {:?} (absolute, drive letter, '..' or NUL)", raw) });
             }
+            if f.is_dir() {
+                continue;
+            }
             match normalize(&raw) {
-                Some(n) => {
-                    self.files.insert(n, Source::Packed { archive, index, size: f.size() });
-                }
-                None => self.rejected.push(format!("{shown}:{}", raw.escape_debug())),
+                Some(n) => mounted.push((n, Source::Packed { archive, index, size: f.size() })),
+                None => rejected.push(format!("{shown}:{}", raw.escape_debug())),
             }
         }
+        self.files.extend(mounted);
+        self.rejected.extend(rejected);
         self.archives.push(Archive { path: path.to_path_buf(), zip });
         Ok(())
     }
@@ -230,6 +269,11 @@ impl Vfs {
                 Origin::Pk3 { archive: a.path.clone(), entry: a.zip.name_for_index(*index).unwrap_or("?").to_string() }
             }
         })
+    }
+
+    /// Every mounted path (normalised), sorted.
+    pub fn names(&self) -> Vec<String> {
+        self.files.keys().cloned().collect()
     }
 
     /// All mounted paths (normalised) under `dir` with the extension `ext` (lower case,
@@ -300,5 +344,73 @@ mod tests {
         for bad in ["../x", "a/../b", "/etc/passwd", "C:/x", "c:x", "a//b", "./a", "a\0b", ""] {
             assert_eq!(normalize(bad), None, "{bad:?}");
         }
+    }
+
+    fn zip_with(entries: &[(&str, &[u8])]) -> Vec<u8> {
+        use std::io::Write;
+        let mut buf = io::Cursor::new(Vec::new());
+        let mut z = zip::ZipWriter::new(&mut buf);
+        for (name, data) in entries {
+            let o = zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Deflated);
+            z.start_file(*name, o).unwrap();
+            z.write_all(data).unwrap();
+        }
+        z.finish().unwrap();
+        buf.into_inner()
+    }
+
+    /// Sets the uncompressed size of every entry (local and central headers) to `size`.
+    fn lie_about_sizes(z: &mut [u8], size: u32) {
+        let mut at = 0;
+        while let Some(p) = z[at..].windows(4).position(|w| w == b"PK\x03\x04" || w == b"PK\x01\x02") {
+            let h = at + p;
+            let off = if &z[h..h + 4] == b"PK\x03\x04" { 22 } else { 24 };
+            z[h + off..h + off + 4].copy_from_slice(&size.to_le_bytes());
+            at = h + 4;
+        }
+    }
+
+    #[test]
+    fn zip_bomb_is_refused_before_and_while_inflating() {
+        let bomb = vec![0u8; 32 << 20];
+        let honest = zip_with(&[("textures/bomb.tga", &bomb), ("scripts/ok.shader", b"x { }")]);
+        assert!(honest.len() < 64 << 10, "{}", honest.len());
+        let mut lying = honest.clone();
+        lie_about_sizes(&mut lying, 5);
+        for (what, bytes) in [("declared", honest), ("lying", lying)] {
+            let mut vfs = Vfs::new();
+            vfs.max_entry_bytes = 1 << 20;
+            vfs.mount_pk3_bytes("bomb.pk3", bytes).unwrap();
+            let t = std::time::Instant::now();
+            match vfs.read("textures/bomb.tga") {
+                Err(VfsError::TooLarge { size, limit, .. }) => {
+                    assert_eq!(limit, 1 << 20);
+                    // Declared: refused from the header; lying: stopped one byte past the limit.
+                    assert_eq!(size, if what == "declared" { 32 << 20 } else { (1 << 20) + 1 }, "{what}");
+                }
+                other => panic!("{what}: {:?}", other.map(|b| b.len())),
+            }
+            assert!(t.elapsed() < std::time::Duration::from_secs(2), "{what}: {:?}", t.elapsed());
+        }
+    }
+
+    #[test]
+    fn hostile_archive_is_refused_whole() {
+        for bad in ["../x", "a/../../b", "/etc/passwd", "C:/win.ini", "c:\\x", "a\\..\\..\\b", "x\0y"] {
+            let z = zip_with(&[("textures/ok.tga", b"ok"), (bad, b"evil")]);
+            let mut vfs = Vfs::new();
+            match vfs.mount_pk3_bytes("evil.pk3", z) {
+                Err(VfsError::Archive { msg, .. }) => assert!(msg.contains("unsafe entry name"), "{bad:?}: {msg}"),
+                other => panic!("{bad:?}: {:?}", other.is_ok()),
+            }
+            assert!(vfs.names().is_empty(), "{bad:?}: nothing mounted from a refused archive");
+        }
+        // Odd but harmless names are left out and listed.
+        let z = zip_with(&[("textures/ok.tga", b"ok"), ("a//b", b"x"), ("./c", b"y")]);
+        let mut vfs = Vfs::new();
+        vfs.mount_pk3_bytes("odd.pk3", z).unwrap();
+        assert_eq!(vfs.names(), ["textures/ok.tga"]);
+        assert_eq!(vfs.rejected.len(), 2);
+        assert_eq!(vfs.read("TEXTURES\\OK.TGA").unwrap(), b"ok");
     }
 }
