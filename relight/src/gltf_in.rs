@@ -33,37 +33,240 @@ fn wrap(m: gltf::texture::WrappingMode) -> Wrap {
     }
 }
 
-fn to_rgba8(path: &Path, d: &gltf::image::Data) -> Result<Vec<u8>> {
-    use gltf::image::Format as F;
-    let n = d.width as usize * d.height as usize;
-    let px = &d.pixels;
-    let out: Vec<u8> = match d.format {
-        F::R8G8B8A8 => px.clone(),
-        F::R8G8B8 => px.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
-        F::R8G8 => px.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0], c[1]]).collect(),
-        F::R8 => px.iter().flat_map(|&c| [c, c, c, 255]).collect(),
-        F::R16G16B16A16 => px.chunks_exact(2).map(|c| c[1]).collect(),
-        F::R16G16B16 => px.chunks_exact(6).flat_map(|c| [c[1], c[3], c[5], 255]).collect(),
-        other => return Err(Error::input(path, format!("unsupported image pixel format {other:?}"))),
-    };
-    if out.len() != n * 4 {
-        return Err(Error::input(path, format!("image of {}x{} has {} bytes", d.width, d.height, px.len())));
+/// Most node instances visited while flattening the scene graph.
+pub const MAX_NODE_VISITS: usize = 1_000_000;
+/// Largest input file (and largest external buffer) read, in bytes.
+pub const MAX_FILE_BYTES: u64 = 4 << 30;
+/// Largest image side accepted, in pixels (convert writes at most 8192).
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Largest decoded image, in bytes (the decoder refuses before allocating more).
+pub const MAX_IMAGE_BYTES: u64 = 1 << 30;
+
+/// Bounds on what reading a glTF may allocate. `Default` gives the constants above; the
+/// fuzz targets use smaller ones.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// Most vertices (in all) and most items of one accessor.
+    pub max_elements: usize,
+    pub max_image_side: u32,
+    pub max_image_bytes: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { max_elements: MAX_ELEMENTS, max_image_side: MAX_IMAGE_SIDE, max_image_bytes: MAX_IMAGE_BYTES }
     }
-    Ok(out)
+}
+
+/// Decodes standard base64 (padding optional, no whitespace), as data URIs carry it.
+fn base64_decode(s: &str) -> Option<Vec<u8>> {
+    let val = |c: u8| -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' | b'-' => 62,
+            b'/' | b'_' => 63,
+            _ => return None,
+        } as u32)
+    };
+    let b = s.trim_end_matches('=').as_bytes();
+    if b.len() % 4 == 1 {
+        return None;
+    }
+    let mut out = Vec::with_capacity(b.len() / 4 * 3 + 2);
+    for chunk in b.chunks(4) {
+        let mut acc = 0u32;
+        for (k, &c) in chunk.iter().enumerate() {
+            acc |= val(c)? << (18 - 6 * k);
+        }
+        let bytes = acc.to_be_bytes();
+        out.extend_from_slice(&bytes[1..chunk.len()]);
+    }
+    Some(out)
+}
+
+/// Decodes `%XX` escapes of a relative URI; `None` for malformed escapes or non-UTF-8.
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// Where a URI points, after the safety rules: data URIs are decoded; relative paths must
+/// stay inside the glTF's directory (no `..`, no absolute path, no drive letter, no NUL,
+/// no other scheme), and are only read when the input came from a directory.
+fn read_uri(uri: &str, base: Option<&Path>, shown: &Path, what: &str) -> Result<Vec<u8>> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, data) = rest.split_once(";base64,").ok_or_else(|| Error::input(shown, format!("{what}: data URI is not base64")))?;
+        return base64_decode(data).ok_or_else(|| Error::input(shown, format!("{what}: invalid base64 in data URI")));
+    }
+    let bad = |why: &str| Error::input(shown, format!("{what}: refused URI {:?} ({why})", uri.escape_debug().to_string()));
+    let rel = percent_decode(uri).ok_or_else(|| bad("malformed percent escape"))?;
+    let slashed = rel.replace('\\', "/");
+    if slashed.contains('\0') || slashed.contains(':') {
+        return Err(bad("a scheme, drive letter or NUL"));
+    }
+    if slashed.is_empty() || slashed.starts_with('/') || slashed.split('/').any(|c| c == "..") {
+        return Err(bad("must be a relative path inside the glTF's directory"));
+    }
+    let base = base.ok_or_else(|| bad("external file in an in-memory glTF"))?;
+    let p = base.join(&slashed);
+    let io = |e: std::io::Error| Error::input(shown, format!("{what}: {}: {e}", p.display()));
+    let size = std::fs::metadata(&p).map_err(io)?.len();
+    if size > MAX_FILE_BYTES {
+        return Err(Error::input(shown, format!("{what}: {} is {size} bytes, over the {MAX_FILE_BYTES}-byte limit", p.display())));
+    }
+    std::fs::read(&p).map_err(io)
+}
+
+/// `[start, start + len)` of a buffer view inside its buffer, checked.
+fn view_range(view: &gltf::buffer::View, buffers: &[Vec<u8>]) -> Option<std::ops::Range<usize>> {
+    let data = buffers.get(view.buffer().index())?;
+    let end = view.offset().checked_add(view.length())?;
+    (end <= data.len()).then_some(view.offset()..end)
+}
+
+/// Checks that an accessor's items lie inside its buffer view, and that its count is
+/// sane, so the `gltf` reader neither overflows nor allocates from a hostile count.
+fn check_accessor(a: &gltf::Accessor, buffers: &[Vec<u8>], max_elements: usize) -> std::result::Result<(), String> {
+    let count = a.count();
+    if count == 0 || count > max_elements {
+        return Err(format!("accessor {}: count {count} (must be 1..={max_elements})", a.index()));
+    }
+    let span = |view: &gltf::buffer::View, offset: usize, n: usize, size: usize| -> bool {
+        let Some(r) = view_range(view, buffers) else { return false };
+        let stride = view.stride().unwrap_or(size).max(size);
+        stride.checked_mul(n - 1).and_then(|x| x.checked_add(size)).and_then(|x| x.checked_add(offset)).is_some_and(|end| end <= r.len())
+    };
+    // Without a buffer view the items are zeros (plus sparse values): bound them by the
+    // input's size, as a dense accessor would be.
+    let total: usize = buffers.iter().map(Vec::len).sum();
+    if a.view().is_none() && count > total.max(1024) {
+        return Err(format!("accessor {}: {count} items without a buffer view, more than the {total} buffer bytes", a.index()));
+    }
+    if let Some(view) = a.view() {
+        if !span(&view, a.offset(), count, a.size()) {
+            return Err(format!("accessor {}: {count} items at offset {} run past buffer view {}", a.index(), a.offset(), view.index()));
+        }
+    }
+    if let Some(sp) = a.sparse() {
+        let n = sp.count();
+        if n == 0 || n > count {
+            return Err(format!("accessor {}: sparse count {n} outside 1..={count}", a.index()));
+        }
+        let (iv, vv) = (sp.indices(), sp.values());
+        if !span(&iv.view(), iv.offset(), n, iv.index_type().size()) || !span(&vv.view(), vv.offset(), n, a.size()) {
+            return Err(format!("accessor {}: sparse data runs past its buffer view", a.index()));
+        }
+    }
+    Ok(())
+}
+
+/// Decodes one image with bounded dimensions and allocation, to RGBA8.
+fn decode_image(bytes: &[u8], mime: Option<&str>, uri: Option<&str>, limits: &Limits) -> std::result::Result<(u32, u32, Vec<u8>), String> {
+    let mut r = image::ImageReader::new(std::io::Cursor::new(bytes));
+    let mut lim = image::Limits::default();
+    lim.max_image_width = Some(limits.max_image_side);
+    lim.max_image_height = Some(limits.max_image_side);
+    lim.max_alloc = Some(limits.max_image_bytes);
+    r.limits(lim);
+    let by_name = |n: &str| {
+        let n = n.to_ascii_lowercase();
+        if n.ends_with(".png") || n.contains("image/png") {
+            Some(image::ImageFormat::Png)
+        } else if n.ends_with(".jpg") || n.ends_with(".jpeg") || n.contains("image/jpeg") {
+            Some(image::ImageFormat::Jpeg)
+        } else {
+            None
+        }
+    };
+    let declared = mime.and_then(by_name).or_else(|| uri.filter(|u| !u.starts_with("data:")).and_then(by_name));
+    let format = declared.or_else(|| match image::guess_format(bytes) {
+        Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => Some(f),
+        _ => None,
+    });
+    let Some(format) = format else { return Err("unsupported image encoding (PNG and JPEG only)".into()) };
+    r.set_format(format);
+    let img = r.decode().map_err(|e| e.to_string())?;
+    let (w, h) = (img.width(), img.height());
+    if w == 0 || h == 0 {
+        return Err(format!("image of {w}x{h}"));
+    }
+    if w as u64 * h as u64 * 4 > limits.max_image_bytes {
+        return Err(format!("image of {w}x{h} is over the {}-byte limit as RGBA8", limits.max_image_bytes));
+    }
+    Ok((w, h, img.to_rgba8().into_raw()))
 }
 
 /// Reads the file and flattens the default scene.
 pub fn read(path: &Path) -> Result<Scene> {
-    let (doc, buffers, images) = gltf::import(path).map_err(|e| Error::input(path, e.to_string()))?;
+    let io = |e| Error::Io { path: path.display().to_string(), source: e };
+    let size = std::fs::metadata(path).map_err(io)?.len();
+    if size > MAX_FILE_BYTES {
+        return Err(Error::input(path, format!("{size} bytes is over the {MAX_FILE_BYTES}-byte limit")));
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
+    let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    read_slice(&bytes, Some(base), path, &Limits::default())
+}
+
+/// Reads a `.gltf` or `.glb` held in memory and flattens the default scene. External
+/// buffers and images are read from `base` (the file's directory); with `None` only data
+/// URIs and the GLB chunk are accepted. `shown` names the input in errors. Hostile input
+/// gives an error, never a panic or an unbounded allocation: URIs may not leave `base`,
+/// every accessor is checked against its buffer view, counts and images are bounded by
+/// `limits`.
+pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limits) -> Result<Scene> {
+    let path = shown;
+    let gltf::Gltf { document: doc, mut blob } = gltf::Gltf::from_slice(bytes).map_err(|e| Error::input(path, e.to_string()))?;
+    let mut buffers: Vec<Vec<u8>> = Vec::new();
+    for b in doc.buffers() {
+        let what = format!("buffer {}", b.index());
+        let data = match b.source() {
+            gltf::buffer::Source::Bin => blob.take().ok_or_else(|| Error::input(path, format!("{what}: refers to a missing GLB binary chunk")))?,
+            gltf::buffer::Source::Uri(uri) => read_uri(uri, base, path, &what)?,
+        };
+        if data.len() < b.length() {
+            return Err(Error::input(path, format!("{what}: {} bytes, shorter than its byteLength {}", data.len(), b.length())));
+        }
+        buffers.push(data);
+    }
+    for a in doc.accessors() {
+        check_accessor(&a, &buffers, limits.max_elements).map_err(|m| Error::input(path, m))?;
+    }
+    let mut images = Vec::new();
+    for img in doc.images() {
+        let what = format!("image {}", img.index());
+        let (encoded, mime, uri): (std::borrow::Cow<[u8]>, Option<&str>, Option<&str>) = match img.source() {
+            gltf::image::Source::View { view, mime_type } => {
+                let r = view_range(&view, &buffers).ok_or_else(|| Error::input(path, format!("{what}: buffer view {} lies outside its buffer", view.index())))?;
+                (std::borrow::Cow::Borrowed(&buffers[view.buffer().index()][r]), Some(mime_type), None)
+            }
+            gltf::image::Source::Uri { uri, mime_type } => (std::borrow::Cow::Owned(read_uri(uri, base, path, &what)?), mime_type, Some(uri)),
+        };
+        images.push(decode_image(&encoded, mime, uri, limits).map_err(|m| Error::input(path, format!("{what}: {m}")))?);
+    }
 
     let mut textures = Vec::new();
     let mut tex_of_image = Vec::new();
-    for img in &images {
+    for (width, height, rgba8) in images {
         tex_of_image.push(textures.len());
         textures.push(Texture {
-            width: img.width,
-            height: img.height,
-            rgba8: to_rgba8(path, img)?,
+            width,
+            height,
+            rgba8,
             wrap_s: Wrap::Repeat,
             wrap_t: Wrap::Repeat,
         });
@@ -138,9 +341,16 @@ pub fn read(path: &Path) -> Result<Scene> {
     // World positions in f64 until the origin is known (see `Scene::origin`).
     let mut world_pos: Vec<DVec3> = Vec::new();
     let mut stack: Vec<(gltf::Node, DMat4, usize)> = roots.into_iter().map(|n| (n, DMat4::IDENTITY, 0)).collect();
+    let mut visits = 0usize;
     while let Some((node, parent, depth)) = stack.pop() {
         if depth > 256 {
             return Err(Error::input(path, "node hierarchy deeper than 256 (a cycle?)"));
+        }
+        // A node listed as the child of several parents is visited once per path: bound
+        // the walk so a hostile DAG cannot multiply it without end.
+        visits += 1;
+        if visits > MAX_NODE_VISITS {
+            return Err(Error::input(path, format!("more than {MAX_NODE_VISITS} node instances in the scene")));
         }
         let world = parent * DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(f64::from)));
         for c in node.children() {
@@ -172,15 +382,15 @@ pub fn read(path: &Path) -> Result<Scene> {
                 skipped.push(format!("{}: mode {:?} is not triangles", what(), prim.mode()));
                 continue;
             }
-            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
             let Some(pos) = reader.read_positions() else {
                 skipped.push(format!("{}: no POSITION", what()));
                 continue;
             };
             let pos: Vec<Vec3> = pos.map(Vec3::from).collect();
             let n = pos.len();
-            if world_pos.len() + n > MAX_ELEMENTS {
-                return Err(Error::unsupported(path, format!("more than {MAX_ELEMENTS} vertices")));
+            if world_pos.len() + n > limits.max_elements {
+                return Err(Error::unsupported(path, format!("more than {} vertices", limits.max_elements)));
             }
             let normals: Option<Vec<Vec3>> = reader.read_normals().map(|it| it.map(Vec3::from).collect());
             let uv0: Option<Vec<Vec2>> = reader.read_tex_coords(0).map(|it| it.into_f32().map(Vec2::from).collect());
@@ -191,12 +401,15 @@ pub fn read(path: &Path) -> Result<Scene> {
                 None => (0..n as u32).collect(),
             };
             let len_ok = |k: usize| k == n;
-            if !normals.as_ref().map_or(true, |v| len_ok(v.len()))
-                || !uv0.as_ref().map_or(true, |v| len_ok(v.len()))
-                || !uv1.as_ref().map_or(true, |v| len_ok(v.len()))
-                || !colors.as_ref().map_or(true, |v| len_ok(v.len()))
+            if !normals.as_ref().is_none_or(|v| len_ok(v.len()))
+                || !uv0.as_ref().is_none_or(|v| len_ok(v.len()))
+                || !uv1.as_ref().is_none_or(|v| len_ok(v.len()))
+                || !colors.as_ref().is_none_or(|v| len_ok(v.len()))
             {
                 return Err(Error::input(path, format!("{}: attribute counts differ from POSITION's {n}", what())));
+            }
+            if mesh.triangles.len() + indices.len() / 3 > limits.max_elements {
+                return Err(Error::unsupported(path, format!("more than {} triangles", limits.max_elements)));
             }
             if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
                 return Err(Error::input(path, format!("{}: index {bad} out of range (vertex count {n})", what())));
@@ -267,5 +480,213 @@ fn repair_normals(mesh: &mut Mesh) {
                 *n = a.normalize_or(Vec3::Y);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn b64(data: &[u8]) -> String {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut s = String::new();
+        for c in data.chunks(3) {
+            let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+            for k in 0..4 {
+                s.push(if k <= c.len() { A[(n >> (18 - 6 * k) & 63) as usize] as char } else { '=' });
+            }
+        }
+        s
+    }
+
+    fn data_uri(bytes: &[u8]) -> String {
+        format!("data:application/octet-stream;base64,{}", b64(bytes))
+    }
+
+    fn crc32(data: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in data {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+            }
+        }
+        !c
+    }
+
+    /// A PNG whose header claims `w` x `h` (valid CRCs; empty image data).
+    fn png_header(w: u32, h: u32) -> Vec<u8> {
+        let mut ihdr = b"IHDR".to_vec();
+        ihdr.extend_from_slice(&w.to_be_bytes());
+        ihdr.extend_from_slice(&h.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
+        let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+        png.extend_from_slice(&13u32.to_be_bytes());
+        png.extend_from_slice(&ihdr);
+        png.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+        for kind in [b"IDAT", b"IEND"] {
+            png.extend_from_slice(&0u32.to_be_bytes());
+            png.extend_from_slice(kind);
+            png.extend_from_slice(&crc32(kind).to_be_bytes());
+        }
+        png
+    }
+
+    /// One triangle (3 float positions in a 36-byte buffer), plus whatever `edit` changes.
+    fn triangle(edit: impl FnOnce(&mut Value)) -> Vec<u8> {
+        let pos: Vec<u8> = [0f32, 0., 0., 1., 0., 0., 0., 1., 0.].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let mut doc = json!({
+            "asset": { "version": "2.0" },
+            "buffers": [{ "byteLength": 36, "uri": data_uri(&pos) }],
+            "bufferViews": [{ "buffer": 0, "byteLength": 36 }],
+            "accessors": [{ "bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                            "min": [0, 0, 0], "max": [1, 1, 0] }],
+            "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0 } }] }],
+            "nodes": [{ "mesh": 0 }],
+            "scenes": [{ "nodes": [0] }],
+            "scene": 0
+        });
+        edit(&mut doc);
+        serde_json::to_vec(&doc).unwrap()
+    }
+
+    fn read_mem(bytes: &[u8]) -> Result<Scene> {
+        read_slice(bytes, None, Path::new("t.gltf"), &Limits::default())
+    }
+
+    fn err_of(r: Result<Scene>) -> String {
+        match r {
+            Ok(_) => panic!("accepted"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn reads_a_minimal_triangle() {
+        let s = read_mem(&triangle(|_| {})).unwrap();
+        assert_eq!(s.mesh.positions.len(), 3);
+        assert_eq!(s.mesh.triangles.len(), 1);
+    }
+
+    /// Found by fuzzing the `gltf` crate's importer path: an image in a buffer view that
+    /// lies past its buffer made it slice out of range (a panic). Now an error.
+    #[test]
+    fn image_view_outside_its_buffer_is_an_error() {
+        let bytes = triangle(|d| {
+            d["bufferViews"].as_array_mut().unwrap().push(json!({ "buffer": 0, "byteOffset": 30, "byteLength": 100 }));
+            d["images"] = json!([{ "bufferView": 1, "mimeType": "image/png" }]);
+        });
+        let e = err_of(read_mem(&bytes));
+        assert!(e.contains("image 0") && e.contains("outside its buffer"), "{e}");
+    }
+
+    /// The `gltf` importer unwrapped the percent-decoding of relative URIs: `%FF` (not
+    /// UTF-8) panicked. Now an error naming the URI.
+    #[test]
+    fn malformed_percent_escape_is_an_error() {
+        let dir = std::env::temp_dir();
+        let bytes = triangle(|d| d["images"] = json!([{ "uri": "%FF%FE.png" }]));
+        let e = err_of(read_slice(&bytes, Some(&dir), Path::new("t.gltf"), &Limits::default()));
+        assert!(e.contains("percent"), "{e}");
+    }
+
+    #[test]
+    fn uris_may_not_leave_the_gltf_directory() {
+        let d = std::env::temp_dir().join(format!("q3gltf-uri-{}", std::process::id()));
+        let sub = d.join("sub");
+        std::fs::create_dir_all(&sub).unwrap();
+        let pos: Vec<u8> = [0f32, 0., 0., 1., 0., 0., 0., 1., 0.].iter().flat_map(|x| x.to_le_bytes()).collect();
+        std::fs::write(d.join("secret.bin"), &pos).unwrap();
+        std::fs::write(sub.join("ok.bin"), &pos).unwrap();
+        let abs = d.join("secret.bin").display().to_string();
+        for uri in ["../secret.bin", "..%2Fsecret.bin", "sub/../../secret.bin", "..\\secret.bin", abs.as_str(), &format!("file://{abs}"), "C:/secret.bin", "ok.bin%00"] {
+            let bytes = triangle(|doc| doc["buffers"][0]["uri"] = json!(uri));
+            let e = err_of(read_slice(&bytes, Some(&sub), Path::new("t.gltf"), &Limits::default()));
+            assert!(e.contains("refused URI"), "{uri}: {e}");
+        }
+        let bytes = triangle(|doc| doc["buffers"][0]["uri"] = json!("ok.bin"));
+        assert_eq!(read_slice(&bytes, Some(&sub), Path::new("t.gltf"), &Limits::default()).unwrap().mesh.positions.len(), 3);
+        // In memory (no base directory) even a harmless relative URI is not read.
+        assert!(err_of(read_mem(&bytes)).contains("in-memory"));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn accessors_are_checked_against_their_views() {
+        for (edit, want) in [
+            (json!({ "count": 1000 }), "run past"),
+            (json!({ "count": 0 }), "count 0"),
+            (json!({ "byteOffset": 4 }), "run past"),
+            (json!({ "count": 3_000_000_000u64 }), "count"),
+        ] {
+            let bytes = triangle(|d| {
+                for (k, v) in edit.as_object().unwrap() {
+                    d["accessors"][0][k] = v.clone();
+                }
+            });
+            let e = err_of(read_mem(&bytes));
+            assert!(e.contains(want), "{edit}: {e}");
+        }
+        // A sparse accessor without a view: its count is bounded by the input's size.
+        let bytes = triangle(|d| {
+            d["bufferViews"].as_array_mut().unwrap().push(json!({ "buffer": 0, "byteLength": 4 }));
+            d["accessors"][0] = json!({ "componentType": 5126, "count": 40_000_000, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0],
+                "sparse": { "count": 1, "indices": { "bufferView": 1, "componentType": 5125 }, "values": { "bufferView": 0 } } });
+        });
+        let e = err_of(read_mem(&bytes));
+        assert!(e.contains("without a buffer view"), "{e}");
+    }
+
+    #[test]
+    fn image_dimensions_are_bounded_before_decoding() {
+        let png = png_header(100_000, 100_000);
+        let bytes = triangle(|d| d["images"] = json!([{ "uri": format!("data:image/png;base64,{}", b64(&png)) }]));
+        let t = std::time::Instant::now();
+        let e = err_of(read_mem(&bytes));
+        assert!(e.contains("image 0") && e.to_lowercase().contains("limit"), "{e}");
+        assert!(t.elapsed() < std::time::Duration::from_secs(1));
+        // Within the side limit but over the byte budget given.
+        let png = png_header(4000, 4000);
+        let bytes = triangle(|d| d["images"] = json!([{ "uri": format!("data:image/png;base64,{}", b64(&png)) }]));
+        let small = Limits { max_image_bytes: 1 << 20, ..Limits::default() };
+        let e = err_of(read_slice(&bytes, None, Path::new("t.gltf"), &small));
+        assert!(e.to_lowercase().contains("limit"), "{e}");
+    }
+
+    /// Nodes shared by two parents on each of 40 levels make 2^40 paths: the walk stops
+    /// at MAX_NODE_VISITS with an error instead of running for ever.
+    #[test]
+    fn shared_nodes_cannot_multiply_the_walk() {
+        let levels = 40;
+        let bytes = triangle(|d| {
+            let mut nodes = Vec::new();
+            for l in 0..levels {
+                let children = if l + 1 < levels { json!([2 * l + 2, 2 * l + 3]) } else { json!([]) };
+                nodes.push(json!({ "children": children, "mesh": 0 }));
+                nodes.push(json!({ "children": children }));
+            }
+            d["nodes"] = json!(nodes);
+            d["scenes"] = json!([{ "nodes": [0, 1] }]);
+        });
+        let t = std::time::Instant::now();
+        let r = read_slice(&bytes, None, Path::new("t.gltf"), &Limits { max_elements: 1 << 30, ..Limits::default() });
+        assert!(t.elapsed() < std::time::Duration::from_secs(30));
+        match r {
+            Ok(_) => panic!("accepted"),
+            Err(e) => {
+                let e = e.to_string();
+                assert!(e.contains("node instances") || e.contains("triangles") || e.contains("vertices"), "{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn base64_round_trip() {
+        for n in 0..10 {
+            let data: Vec<u8> = (0..n).map(|i| (i * 37 + 5) as u8).collect();
+            assert_eq!(base64_decode(&b64(&data)).unwrap(), data);
+        }
+        assert!(base64_decode("a").is_none() && base64_decode("ab!d").is_none());
     }
 }
