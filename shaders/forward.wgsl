@@ -2,7 +2,7 @@
 // documents the math). One invocation per problem vertex; each workgroup reduces its
 // vertices' contributions and writes one block of partial sums:
 //   block[wg * stride + 8 * j + 0..6]  = dF/dp_j (3), dF/dI_j (3)
-//   block[wg * stride + 8 * K + 0..5]  = F, sum A w (x - t)^2, dF/da (3)
+//   block[wg * stride + 8 * K + 0..8]  = F, sum A w (x - t)^2, dF/da (3), dF/dk (3)
 // Needs problem.wgsl prepended.
 
 struct Params {
@@ -11,6 +11,7 @@ struct Params {
     words: u32,
     stride: u32,
     ambient: vec4<f32>,
+    indirect: vec4<f32>,
     eps: f32,
     pad0: f32,
     pad1: f32,
@@ -87,10 +88,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var f = 0.0;
     var num = 0.0;
     var ga = vec3<f32>(0.0);
+    var gk = vec3<f32>(0.0);
     if (live) {
         for (var c = 0u; c < 3u; c = c + 1u) {
             let a = v.albedo[c];
-            let x = a * (e[c] / PI + prm.ambient[c]);
+            let o = v.indirect[c];
+            let x = a * (e[c] / PI + prm.ambient[c]) + prm.indirect[c] * o;
             let w = v.weight[c];
             let two = x - v.goal[c];
             let one = min(x - v.lower[c], 0.0);
@@ -99,6 +102,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let rho = v.area * (w * two + (1.0 - w) * one);
             rho_a[c] = rho * a / PI;
             ga[c] = rho * a;
+            gk[c] = rho * o;
         }
     }
     let base = wid.x * prm.stride;
@@ -124,8 +128,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         workgroupBarrier();
     }
-    red_a[lid] = vec4<f32>(f, num, 0.0, 0.0);
-    red_b[lid] = vec4<f32>(ga, 0.0);
+    red_a[lid] = vec4<f32>(f, num, gk.x, gk.y);
+    red_b[lid] = vec4<f32>(ga, gk.z);
     reduce(lid);
     if (lid == 0u) {
         let o = base + 8u * prm.k;
@@ -134,5 +138,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         partial[o + 2u] = red_b[0].x;
         partial[o + 3u] = red_b[0].y;
         partial[o + 4u] = red_b[0].z;
+        partial[o + 5u] = red_a[0].z;
+        partial[o + 6u] = red_a[0].w;
+        partial[o + 7u] = red_b[0].w;
     }
 }

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
-use q3gltf_relight::pipeline::{self, BackendChoice, Init, Options, Progress, Subdivide, TargetSpace};
+use q3gltf_relight::pipeline::{self, BackendChoice, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
 #[derive(Args)]
@@ -58,6 +58,15 @@ pub struct RelightArgs {
     /// Plot relative error against time as a PNG.
     #[arg(long, value_name = "curve.png")]
     pub plot: Option<PathBuf>,
+    /// Indirect light gathered from the baked data (light that bounced off other
+    /// surfaces): `auto` keeps it where it lowers the error, then the lights are the
+    /// direct light only and the scene needs a renderer with global illumination to look
+    /// like its lightmaps; `off` makes the lights carry the bounced light too.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub indirect: String,
+    /// Gather rays per target row for `--indirect` (rounded up to a square).
+    #[arg(long = "indirect-rays", default_value_t = 16)]
+    pub indirect_rays: usize,
     /// Chooses which vertices `--init auto` samples (every k-th vertex from offset seed % k);
     /// the same seed gives the same result.
     #[arg(long, default_value_t = 1)]
@@ -174,6 +183,12 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
             _ => BackendChoice::Auto,
         },
         seed: a.seed,
+        indirect: match a.indirect.as_str() {
+            "on" => Optional::On,
+            "off" => Optional::Off,
+            _ => Optional::Auto,
+        },
+        indirect_rays: a.indirect_rays.clamp(1, 1024),
     })
 }
 
@@ -211,7 +226,7 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
             rep.target.with_target, rep.target.censored, rep.target.no_coverage
         ),
     }
-    println!("  lights    {} (pruned {}, merged {}); ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.ambient_note);
+    println!("  lights    {} (pruned {}, merged {}); indirect {}; ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.indirect_note, rep.ambient_note);
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));

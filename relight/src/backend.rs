@@ -6,7 +6,7 @@ use glam::Vec3;
 use crate::error::Result;
 
 use crate::bvh::Bvh;
-use crate::model::{self, Eval, Light, Problem};
+use crate::model::{self, Eval, Light, Problem, Terms};
 use crate::visibility::{self, Visibility};
 
 pub trait Backend {
@@ -15,7 +15,7 @@ pub trait Backend {
     /// Visibility bits of each light position from every problem vertex.
     fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>>;
     /// Objective, error and gradient.
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval>;
+    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval>;
 }
 
 pub struct Cpu<'a> {
@@ -30,7 +30,7 @@ impl Backend for Cpu<'_> {
     fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
         Ok(lights.iter().map(|&p| visibility::trace_light(self.bvh, self.pb, p)).collect())
     }
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval> {
-        Ok(model::evaluate(self.pb, vis, lights, ambient))
+    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
+        Ok(model::evaluate(self.pb, vis, lights, terms))
     }
 }

@@ -3,7 +3,8 @@
 //!
 //! Parameters per light (7): position `q` in units of `unit` meters around the scene
 //! centre, log intensity `s`, log colour `g_c`; `I_c = exp(s + g_c)` is positive by
-//! construction. An optional ambient term adds 3 parameters `a_c = exp(alpha_c)`.
+//! construction. The optional global terms ([`Globals`]: ambient `a_c`, indirect scale
+//! `k_c`) add 3 parameters each, also as logarithms.
 //! Penalties (scaled to the objective of an unlit scene `F0`): a light closer than
 //! `min_dist` to a surface pays `F0 (1 - dist/min_dist)^2`; a light outside the scene's box
 //! pays `F0 (outside/unit)^2` per axis.
@@ -14,11 +15,30 @@ use glam::Vec3;
 
 use crate::backend::Backend;
 use crate::bvh::Bvh;
-use crate::model::{Eval, Light, Problem};
+use crate::model::{Eval, Light, Problem, Terms};
 use crate::optim::{self, Stop};
 use crate::visibility::Visibility;
 
 const PER_LIGHT: usize = 7;
+
+/// The model's optional global terms: `None` where the model leaves a term out.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Globals {
+    /// Ambient irradiance / pi per channel.
+    pub ambient: Option<[f32; 3]>,
+    /// Scale of the gathered indirect radiance per channel.
+    pub indirect: Option<[f32; 3]>,
+}
+
+impl Globals {
+    pub fn terms(&self) -> Terms {
+        Terms { ambient: self.ambient.unwrap_or([0.0; 3]), indirect: self.indirect.unwrap_or([0.0; 3]) }
+    }
+    /// How many parameters (and exact-fit columns) the terms in use add.
+    fn count(&self) -> usize {
+        self.ambient.is_some() as usize + self.indirect.is_some() as usize
+    }
+}
 
 /// Which light parameters a phase changes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -94,7 +114,7 @@ pub struct Fitter<'a> {
     pub vis: Visibility,
     pub lights: Vec<Light>,
     pub locked: Vec<bool>,
-    pub ambient: Option<[f32; 3]>,
+    pub globals: Globals,
     /// Position parameter unit, m.
     pub unit: f32,
     pub center: Vec3,
@@ -126,7 +146,7 @@ impl<'a> Fitter<'a> {
             vis: Visibility::default(),
             lights: Vec::new(),
             locked: Vec::new(),
-            ambient: None,
+            globals: Globals::default(),
             unit: 0.05 * diag,
             center: (lo + hi) * 0.5,
             lo,
@@ -151,19 +171,19 @@ impl<'a> Fitter<'a> {
 
     /// Objective without penalties, at the current lights (re-traces what moved).
     pub fn eval(&mut self) -> Eval {
-        self.eval_lights(&self.lights.clone(), self.ambient)
+        self.eval_lights(&self.lights.clone(), self.globals)
     }
 
-    pub fn eval_lights(&mut self, lights: &[Light], ambient: Option<[f32; 3]>) -> Eval {
+    pub fn eval_lights(&mut self, lights: &[Light], globals: Globals) -> Eval {
         let n = self.pb.len();
-        let failed = Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], grad_ambient: [0.0; 3] };
+        let failed = Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], ..Default::default() };
         if self.failure.is_some() {
             return failed;
         }
         let backend = &mut *self.backend;
         let r = self.vis.update(lights, self.retrace_tol, n, &mut |p| backend.trace(p)).and_then(|_| {
             self.evaluations += 1;
-            self.backend.evaluate(&self.vis, lights, ambient.unwrap_or([0.0; 3]))
+            self.backend.evaluate(&self.vis, lights, globals.terms())
         });
         match r {
             Ok(ev) => ev,
@@ -187,16 +207,16 @@ impl<'a> Fitter<'a> {
     }
 
     /// Like `eval_lights` but with the visibility cache as it is (no re-trace).
-    pub fn eval_frozen(&mut self, lights: &[Light], ambient: Option<[f32; 3]>) -> Eval {
+    pub fn eval_frozen(&mut self, lights: &[Light], globals: Globals) -> Eval {
         if self.failure.is_some() || self.vis.bits.len() != lights.len() {
-            return self.eval_lights(lights, ambient);
+            return self.eval_lights(lights, globals);
         }
         self.evaluations += 1;
-        match self.backend.evaluate(&self.vis, lights, ambient.unwrap_or([0.0; 3])) {
+        match self.backend.evaluate(&self.vis, lights, globals.terms()) {
             Ok(ev) => ev,
             Err(e) => {
                 self.failure = Some(e);
-                Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], grad_ambient: [0.0; 3] }
+                Eval { f: f64::NAN, rel_error: f64::NAN, grad: vec![[0.0; 6]; lights.len()], ..Default::default() }
             }
         }
     }
@@ -211,13 +231,13 @@ impl<'a> Fitter<'a> {
                 x.push(((l.rgb[c] / m).max(1e-9) as f64).ln());
             }
         }
-        if let Some(a) = self.ambient {
+        for a in [self.globals.ambient, self.globals.indirect].into_iter().flatten() {
             x.extend(a.map(|v| (v.max(1e-12) as f64).ln()));
         }
         x
     }
 
-    fn decode(&self, x: &[f64]) -> (Vec<Light>, Option<[f32; 3]>) {
+    fn decode(&self, x: &[f64]) -> (Vec<Light>, Globals) {
         let k = self.lights.len();
         let lights = (0..k)
             .map(|j| {
@@ -227,8 +247,17 @@ impl<'a> Fitter<'a> {
                 Light { pos, rgb }
             })
             .collect();
-        let ambient = self.ambient.map(|_| [0, 1, 2].map(|c| x[k * PER_LIGHT + c].clamp(-80.0, 80.0).exp() as f32));
-        (lights, ambient)
+        let mut o = k * PER_LIGHT;
+        let mut next = |used: bool| {
+            used.then(|| {
+                let v = [0, 1, 2].map(|c| x[o + c].clamp(-80.0, 80.0).exp() as f32);
+                o += 3;
+                v
+            })
+        };
+        let ambient = next(self.globals.ambient.is_some());
+        let indirect = next(self.globals.indirect.is_some());
+        (lights, Globals { ambient, indirect })
     }
 
     /// Penalty value and its gradient with respect to each light position (per meter).
@@ -269,9 +298,7 @@ impl<'a> Fitter<'a> {
             m.push(set.intensity && free);
             m.extend([set.color && free; 3]);
         }
-        if self.ambient.is_some() {
-            m.extend([with_ambient; 3]);
-        }
+        m.extend(std::iter::repeat_n(with_ambient, 3 * self.globals.count()));
         m
     }
 
@@ -288,8 +315,8 @@ impl<'a> Fitter<'a> {
             let this = std::cell::RefCell::new(&mut *self);
             let mut objective = |x: &[f64], fresh: bool| -> (f64, Vec<f64>) {
                 let mut me = this.borrow_mut();
-                let (lights, ambient) = me.decode(x);
-                let ev = if fresh { me.eval_lights(&lights, ambient) } else { me.eval_frozen(&lights, ambient) };
+                let (lights, globals) = me.decode(x);
+                let ev = if fresh { me.eval_lights(&lights, globals) } else { me.eval_frozen(&lights, globals) };
                 let (pen, pgrad) = me.penalty(&lights);
                 last_err.set(ev.rel_error);
                 let mut g = vec![0.0; x.len()];
@@ -307,10 +334,13 @@ impl<'a> Fitter<'a> {
                     }
                     g[o + 3] = gs;
                 }
-                if let Some(a) = ambient {
-                    let o = lights.len() * PER_LIGHT;
-                    for c in 0..3 {
-                        g[o + c] = ev.grad_ambient[c] * a[c] as f64;
+                let mut o = lights.len() * PER_LIGHT;
+                for (value, grad) in [(globals.ambient, ev.grad_ambient), (globals.indirect, ev.grad_indirect)] {
+                    if let Some(a) = value {
+                        for c in 0..3 {
+                            g[o + c] = grad[c] * a[c] as f64;
+                        }
+                        o += 3;
                     }
                 }
                 (ev.f + pen, g)
@@ -329,9 +359,9 @@ impl<'a> Fitter<'a> {
                 Algorithm::Lbfgs { step } => optim::lbfgs(&x0, &mask, step, phase.max_iterations, 1e-6, &mut objective, &mut observe),
             }
         };
-        let (lights, ambient) = self.decode(&outcome.x);
+        let (lights, globals) = self.decode(&outcome.x);
         self.lights = lights;
-        self.ambient = ambient;
+        self.globals = globals;
         let after = self.eval().rel_error;
         let s = PhaseSummary {
             name: name.to_string(),
@@ -356,8 +386,10 @@ impl<'a> Fitter<'a> {
             return f64::NAN;
         }
         let k = self.lights.len();
-        let amb = self.ambient.is_some();
-        let cols = k + amb as usize;
+        // Columns: the lights, then the ambient and indirect terms in use.
+        let amb = self.globals.ambient.map(|_| k);
+        let ind = self.globals.indirect.map(|_| k + amb.is_some() as usize);
+        let cols = k + self.globals.count();
         let pb = self.pb;
         let lights = self.lights.clone();
         let vis = &self.vis;
@@ -370,6 +402,7 @@ impl<'a> Fitter<'a> {
                 let mut gram = vec![vec![0.0f64; cols * cols]; 3];
                 let mut rhs = vec![vec![0.0f64; cols]; 3];
                 let mut nz: Vec<(usize, f64)> = Vec::new();
+                let mut basis: Vec<(usize, f64)> = Vec::new();
                 for i in ci * chunk..((ci + 1) * chunk).min(pb.len()) {
                     nz.clear();
                     for (j, l) in lights.iter().enumerate() {
@@ -380,19 +413,21 @@ impl<'a> Fitter<'a> {
                             }
                         }
                     }
-                    if amb {
-                        nz.push((k, 1.0));
-                    }
                     for c in 0..3 {
                         let w = pb.area[i] as f64 * pb.weight[i][c] as f64;
                         if w == 0.0 {
                             continue;
                         }
+                        // Each column's radiance per unit of its parameter, at this row.
                         let a = pb.albedo[i][c] as f64;
-                        for &(j, gj) in &nz {
-                            rhs[c][j] += w * a * gj * pb.target[i][c] as f64;
-                            for &(l, gl) in &nz {
-                                gram[c][j * cols + l] += w * a * a * gj * gl;
+                        basis.clear();
+                        basis.extend(nz.iter().map(|&(j, g)| (j, a * g)));
+                        basis.extend(amb.map(|col| (col, a)));
+                        basis.extend(ind.map(|col| (col, pb.indirect[i][c] as f64)));
+                        for &(j, bj) in &basis {
+                            rhs[c][j] += w * bj * pb.target[i][c] as f64;
+                            for &(l, bl) in &basis {
+                                gram[c][j * cols + l] += w * bj * bl;
                             }
                         }
                     }
@@ -414,15 +449,19 @@ impl<'a> Fitter<'a> {
                 },
             );
         for c in 0..3 {
-            let mut x: Vec<f64> = (0..cols).map(|j| if j < k { self.lights[j].rgb[c] as f64 } else { self.ambient.map_or(0.0, |a| a[c] as f64) }).collect();
+            let mut x: Vec<f64> = self.lights.iter().map(|l| l.rgb[c] as f64).collect();
+            x.extend([self.globals.ambient, self.globals.indirect].into_iter().flatten().map(|a| a[c] as f64));
             let free: Vec<bool> = (0..cols).map(|j| j >= k || !self.locked[j]).collect();
             nnls_cd(&gram[c], &rhs[c], cols, &mut x, &free, 300);
             for j in 0..k {
                 // Keep a light's channel just above zero so its log parameterisation stays finite.
                 self.lights[j].rgb[c] = (x[j] as f32).max(1e-6 * x.iter().copied().fold(1e-9, f64::max) as f32);
             }
-            if let Some(a) = self.ambient.as_mut() {
-                a[c] = (x[k] as f32).max(1e-9);
+            if let (Some(a), Some(col)) = (self.globals.ambient.as_mut(), amb) {
+                a[c] = (x[col] as f32).max(1e-9);
+            }
+            if let (Some(s), Some(col)) = (self.globals.indirect.as_mut(), ind) {
+                s[c] = (x[col] as f32).max(1e-9);
             }
         }
         self.eval().rel_error
@@ -451,7 +490,7 @@ impl<'a> Fitter<'a> {
                 return removed;
             }
             let base = self.fit_intensities();
-            let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.ambient);
+            let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.globals);
             // Try the weakest lights first (least energy reaching the target).
             let mut order: Vec<usize> = (0..self.lights.len()).filter(|&j| !self.locked[j]).collect();
             order.sort_by(|&a, &b| self.lights[a].rgb.iter().sum::<f32>().total_cmp(&self.lights[b].rgb.iter().sum::<f32>()));
@@ -464,10 +503,10 @@ impl<'a> Fitter<'a> {
                     done = true;
                     break;
                 }
-                (self.lights, self.locked, self.vis, self.ambient) = saved.clone();
+                (self.lights, self.locked, self.vis, self.globals) = saved.clone();
             }
             if !done {
-                (self.lights, self.locked, self.vis, self.ambient) = saved;
+                (self.lights, self.locked, self.vis, self.globals) = saved;
                 return removed;
             }
         }
@@ -488,7 +527,7 @@ impl<'a> Fitter<'a> {
                     if self.locked[a] || self.locked[b] || (self.lights[a].pos - self.lights[b].pos).length() > dist {
                         continue;
                     }
-                    let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.ambient);
+                    let saved = (self.lights.clone(), self.locked.clone(), self.vis.clone(), self.globals);
                     let (la, lb) = (self.lights[a], self.lights[b]);
                     let (wa, wb) = (la.rgb.iter().sum::<f32>(), lb.rgb.iter().sum::<f32>());
                     let pos = (la.pos * wa + lb.pos * wb) / (wa + wb).max(1e-30);
@@ -499,7 +538,7 @@ impl<'a> Fitter<'a> {
                         merged += 1;
                         continue 'outer;
                     }
-                    (self.lights, self.locked, self.vis, self.ambient) = saved;
+                    (self.lights, self.locked, self.vis, self.globals) = saved;
                 }
             }
             return merged;

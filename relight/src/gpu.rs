@@ -10,7 +10,7 @@ use wgpu::util::DeviceExt;
 use crate::backend::Backend;
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::model::{Eval, Light, Problem};
+use crate::model::{Eval, Light, Problem, Terms};
 use crate::scene::{Lighting, Scene, Wrap};
 use crate::target::{self, CORNER_FLOATS};
 use crate::visibility::Visibility;
@@ -243,6 +243,7 @@ struct GpuVertex {
     target: [f32; 4],
     weight: [f32; 4],
     lower: [f32; 4],
+    indirect: [f32; 4],
 }
 
 #[repr(C)]
@@ -262,6 +263,7 @@ struct ForwardParams {
     words: u32,
     stride: u32,
     ambient: [f32; 4],
+    indirect: [f32; 4],
     eps: f32,
     pad: [f32; 3],
 }
@@ -331,6 +333,7 @@ impl GpuBackend {
                 target: [pb.target[i][0], pb.target[i][1], pb.target[i][2], 0.0],
                 weight: [pb.weight[i][0], pb.weight[i][1], pb.weight[i][2], 0.0],
                 lower: [pb.lower[i][0], pb.lower[i][1], pb.lower[i][2], 0.0],
+                indirect: [pb.indirect[i][0], pb.indirect[i][1], pb.indirect[i][2], 0.0],
             })
             .collect();
         let max = ctx.max_binding();
@@ -397,7 +400,7 @@ impl GpuBackend {
         Ok(out)
     }
 
-    fn try_evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval> {
+    fn try_evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
         let d = &self.ctx.device;
         let k = lights.len();
         let wbytes = self.words as usize * 4;
@@ -425,7 +428,7 @@ impl GpuBackend {
         let stride = 8 * (k as u32 + 1);
         let size = groups as u64 * stride as u64 * 4;
         let partial = d.create_buffer(&wgpu::BufferDescriptor { label: Some("partial"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
-        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [ambient[0], ambient[1], ambient[2], 0.0], eps: self.eps, pad: [0.0; 3] };
+        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [terms.ambient[0], terms.ambient[1], terms.ambient[2], 0.0], indirect: [terms.indirect[0], terms.indirect[1], terms.indirect[2], 0.0], eps: self.eps, pad: [0.0; 3] };
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("forward params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
         let layout = self.ctx.pipes.forward.get_bind_group_layout(0);
         let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -462,6 +465,7 @@ impl GpuBackend {
             num += t[1] as f64;
             for c in 0..3 {
                 ev.grad_ambient[c] += t[2 + c] as f64;
+                ev.grad_indirect[c] += t[5 + c] as f64;
             }
         }
         Ok(ev_with_error(ev, num, self.norm2))
@@ -480,8 +484,8 @@ impl Backend for GpuBackend {
     fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
         self.try_trace(lights)
     }
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Result<Eval> {
-        self.try_evaluate(vis, lights, ambient)
+    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
+        self.try_evaluate(vis, lights, terms)
     }
 }
 
@@ -515,7 +519,10 @@ mod tests {
         mesh.tri_material.extend([0, 0]);
         mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
         let (lo, hi) = mesh.bounds();
-        let pb = Problem::new(&mesh, &tg, (hi - lo).length());
+        let mut pb = Problem::new(&mesh, &tg, (hi - lo).length());
+        for (i, o) in pb.indirect.iter_mut().enumerate() {
+            *o = [0.02 * (i % 4) as f32, 0.05, 0.01 * (i % 7) as f32];
+        }
         let bvh = Bvh::build(&mesh);
         let lights = vec![
             Light { pos: Vec3::new(2.0, 1.2, 0.5), rgb: [2.0, 1.5, 1.0] },
@@ -531,9 +538,9 @@ mod tests {
         assert!(blocked > 0, "the pillar casts a shadow");
         let mut vis = Visibility::default();
         vis.update(&lights, 0.0, pb.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &pb, q)).collect())).unwrap();
-        let ambient = [0.01, 0.02, 0.03];
-        let c = crate::model::evaluate(&pb, &vis, &lights, ambient);
-        let g = gpu.evaluate(&vis, &lights, ambient).unwrap();
+        let terms = Terms { ambient: [0.01, 0.02, 0.03], indirect: [0.7, 1.0, 1.3] };
+        let c = crate::model::evaluate(&pb, &vis, &lights, terms);
+        let g = gpu.evaluate(&vis, &lights, terms).unwrap();
         let rel = |a: f64, b: f64, scale: f64| (a - b).abs() / scale.max(1e-30);
         assert!(rel(c.f, g.f, c.f) < 1e-4, "objective {} vs {}", c.f, g.f);
         assert!(rel(c.rel_error, g.rel_error, c.rel_error) < 1e-4);
@@ -545,6 +552,7 @@ mod tests {
         }
         for k in 0..3 {
             assert!(rel(c.grad_ambient[k], g.grad_ambient[k], c.grad_ambient[k].abs()) < 1e-4);
+            assert!(rel(c.grad_indirect[k], g.grad_indirect[k], c.grad_indirect[k].abs()) < 1e-4, "indirect {k}: cpu {} wgpu {}", c.grad_indirect[k], g.grad_indirect[k]);
         }
     }
 }

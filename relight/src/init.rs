@@ -77,20 +77,24 @@ pub struct AutoStats {
 }
 
 /// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
-pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
+#[allow(clippy::too_many_arguments)]
+pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
     let sub = pb.subsample(sample, seed);
     let diag = (hi - lo).length().max(1e-3);
     let mut backend = Cpu { pb: &sub, bvh };
     let mut fit = Fitter::new(&sub, bvh, &mut backend, lo, hi);
     fit.deadline = deadline;
+    // The global terms the model starts with (the indirect term): lights are placed for
+    // what they leave unexplained.
+    fit.globals = globals;
     for (l, locked) in start {
         fit.add_light(*l, *locked);
     }
     let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new() };
-    let mut err = if fit.lights.is_empty() { 1.0 } else { fit.fit_intensities() };
+    let mut err = if fit.lights.is_empty() && fit.globals == crate::fit::Globals::default() { 1.0 } else { fit.fit_intensities() };
     let spacing = 0.05 * diag;
     while fit.lights.len() < max_lights && !fit.out_of_time() {
-        let x = radiance(&sub, &fit.vis, &fit.lights, fit.ambient.unwrap_or([0.0; 3]));
+        let x = radiance(&sub, &fit.vis, &fit.lights, fit.globals.terms());
         let mut order: Vec<(f64, usize)> = (0..sub.len())
             .map(|i| {
                 let r: f64 = (0..3).map(|c| sub.weight[i][c] as f64 * ((sub.target[i][c] - x[i][c]).max(0.0) as f64)).sum();

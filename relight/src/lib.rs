@@ -15,6 +15,7 @@ pub mod error;
 pub mod fit;
 pub mod gltf_in;
 pub mod gpu;
+pub mod indirect;
 pub mod init;
 pub mod lights_out;
 pub mod luxel;

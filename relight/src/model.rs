@@ -1,11 +1,13 @@
 //! The forward model, the objective and its analytic gradient (CPU reference; the WGSL
 //! version is `shaders/forward.wgsl`).
 //!
-//! View-independent Lambertian radiance at vertex `i`, channel `c`, from point lights `j`
-//! of radiant intensity `I_jc` [W/sr] at `p_j` [m], plus an optional ambient term:
+//! View-independent Lambertian radiance at row `i` (a vertex or a luxel), channel `c`, from
+//! point lights `j` of radiant intensity `I_jc` [W/sr] at `p_j` [m], plus two optional
+//! global terms, an ambient irradiance `a_c` and a scale `k_c` of the indirect radiance
+//! `o_ic` gathered once from the data ([`crate::indirect`]):
 //!
 //! ```text
-//! x_ic = albedo_ic / pi * sum_j I_jc V_ij g_ij  +  albedo_ic * a_c
+//! x_ic = albedo_ic / pi * sum_j I_jc V_ij g_ij  +  albedo_ic * a_c  +  k_c * o_ic
 //! g_ij = max(0, n_i . d) / (|d| max(|d|^2, eps^2)),    d = p_j - x_i
 //! ```
 //!
@@ -22,6 +24,7 @@
 //! `dF/dp_j = sum_i (sum_c rho_ic albedo_ic I_jc / pi) V_ij grad_p g_ij`, where for
 //! `s = n.d > 0`, `r = |d|`: `grad g = n/r^3 - 3 s d / r^5` (or `n/(r eps^2) - s d/(r^3 eps^2)`
 //! inside `eps`). Visibility is piecewise constant, so its derivative is zero almost everywhere.
+//! The global terms: `dF/da_c = sum_i rho_ic albedo_ic`, `dF/dk_c = sum_i rho_ic o_ic`.
 
 use std::f64::consts::PI;
 
@@ -47,6 +50,8 @@ pub struct Problem {
     pub lower: Vec<[f32; 3]>,
     /// Vertex area A_i, m^2.
     pub area: Vec<f32>,
+    /// Indirect radiance `o_i` per row (zero unless [`crate::indirect`] filled it in).
+    pub indirect: Vec<[f32; 3]>,
     /// `eps` of the inverse square, m.
     pub eps: f32,
     /// Shadow rays start this far along the normal, m.
@@ -84,6 +89,7 @@ impl Problem {
         self.weight.push(weight);
         self.lower.push(lower);
         self.area.push(area);
+        self.indirect.push([0.0; 3]);
     }
 
     /// Completes a problem built row by row (computes the error's denominator).
@@ -112,6 +118,7 @@ impl Problem {
         let mut p = Problem { eps: self.eps, ray_offset: self.ray_offset, ..Default::default() };
         for i in ((seed % stride as u64) as usize..self.len()).step_by(stride) {
             p.push(self.vertex[i], self.pos[i], self.normal[i], self.albedo[i], self.target[i], self.weight[i], self.lower[i], self.area[i] * stride as f32);
+            *p.indirect.last_mut().expect("just pushed") = self.indirect[i];
         }
         p.set_norm2();
         p
@@ -125,6 +132,16 @@ pub struct Light {
     pub rgb: [f32; 3],
 }
 
+/// The model's global terms (see the module docs), held fixed by the kernels and fitted
+/// like the lights' intensities.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Terms {
+    /// Ambient irradiance / pi per channel, `a_c`.
+    pub ambient: [f32; 3],
+    /// Scale of the gathered indirect radiance per channel, `k_c`.
+    pub indirect: [f32; 3],
+}
+
 /// Value and gradient of the objective.
 #[derive(Debug, Clone, Default)]
 pub struct Eval {
@@ -136,6 +153,8 @@ pub struct Eval {
     pub grad: Vec<[f64; 6]>,
     /// dF/da_c of the ambient term.
     pub grad_ambient: [f64; 3],
+    /// dF/dk_c of the indirect term.
+    pub grad_indirect: [f64; 3],
 }
 
 /// `g` of the module docs and its gradient with respect to the light position.
@@ -170,7 +189,7 @@ pub fn residual(x: f64, t: f64, w: f64, lb: f64, area: f64) -> (f64, f64, f64) {
 }
 
 /// Radiance of every problem vertex (no gradient).
-pub fn radiance(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Vec<[f32; 3]> {
+pub fn radiance(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) -> Vec<[f32; 3]> {
     (0..pb.len())
         .into_par_iter()
         .map(|i| {
@@ -184,22 +203,24 @@ pub fn radiance(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32;
                     e[c] += l.rgb[c] as f64 * g as f64;
                 }
             }
-            [0, 1, 2].map(|c| (pb.albedo[i][c] as f64 * (e[c] / PI + ambient[c] as f64)) as f32)
+            [0, 1, 2].map(|c| (pb.albedo[i][c] as f64 * (e[c] / PI + terms.ambient[c] as f64) + terms.indirect[c] as f64 * pb.indirect[i][c] as f64) as f32)
         })
         .collect()
 }
 
 /// Objective, relative error and gradient on the CPU (rayon over vertex chunks, f64 sums).
-pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32; 3]) -> Eval {
+pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) -> Eval {
     let k = lights.len();
     let chunk = 4096;
-    let parts: Vec<(f64, f64, Vec<[f64; 6]>, [f64; 3])> = (0..pb.len().div_ceil(chunk))
+    #[allow(clippy::type_complexity)]
+    let parts: Vec<(f64, f64, Vec<[f64; 6]>, [f64; 3], [f64; 3])> = (0..pb.len().div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
             let mut f = 0.0;
             let mut num = 0.0;
             let mut grad = vec![[0.0f64; 6]; k];
             let mut ga = [0.0f64; 3];
+            let mut gk = [0.0f64; 3];
             let mut gs = vec![(0.0f32, Vec3::ZERO); k];
             for i in ci * chunk..((ci + 1) * chunk).min(pb.len()) {
                 let (x, n) = (pb.pos[i], pb.normal[i]);
@@ -213,12 +234,14 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32;
                 let mut rho_a = [0.0f64; 3]; // rho_ic * albedo_ic / pi
                 for c in 0..3 {
                     let a = pb.albedo[i][c] as f64;
-                    let xc = a * (e[c] / PI + ambient[c] as f64);
+                    let o = pb.indirect[i][c] as f64;
+                    let xc = a * (e[c] / PI + terms.ambient[c] as f64) + terms.indirect[c] as f64 * o;
                     let (fi, rho, ni) = residual(xc, pb.target[i][c] as f64, pb.weight[i][c] as f64, pb.lower[i][c] as f64, pb.area[i] as f64);
                     f += fi;
                     num += ni;
                     rho_a[c] = rho * a / PI;
                     ga[c] += rho * a;
+                    gk[c] += rho * o;
                 }
                 if rho_a == [0.0; 3] {
                     continue;
@@ -240,12 +263,12 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32;
                     gr[2] += dg.z;
                 }
             }
-            (f, num, grad, ga)
+            (f, num, grad, ga, gk)
         })
         .collect();
     let mut out = Eval { grad: vec![[0.0; 6]; k], ..Default::default() };
     let mut num = 0.0;
-    for (f, nm, g, ga) in parts {
+    for (f, nm, g, ga, gk) in parts {
         out.f += f;
         num += nm;
         for (a, b) in out.grad.iter_mut().zip(g) {
@@ -255,6 +278,7 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], ambient: [f32;
         }
         for c in 0..3 {
             out.grad_ambient[c] += ga[c];
+            out.grad_indirect[c] += gk[c];
         }
     }
     out.rel_error = if pb.norm2 > 0.0 { (num / pb.norm2).sqrt() } else { 0.0 };
@@ -272,20 +296,23 @@ mod tests {
     fn gradient_matches_central_differences() {
         let (mesh, tg) = room(6);
         let (lo, hi) = mesh.bounds();
-        let pb = Problem::new(&mesh, &tg, (hi - lo).length());
+        let mut pb = Problem::new(&mesh, &tg, (hi - lo).length());
+        for (i, o) in pb.indirect.iter_mut().enumerate() {
+            *o = [0.05 + 0.01 * (i % 5) as f32, 0.04, 0.03 + 0.02 * (i % 3) as f32];
+        }
         let bvh = Bvh::build(&mesh);
         let lights = vec![
             Light { pos: Vec3::new(1.1, 1.7, 0.9), rgb: [2.0, 1.5, 1.0] },
             Light { pos: Vec3::new(2.6, 0.8, 2.2), rgb: [0.7, 1.2, 1.9] },
         ];
-        let ambient = [0.01, 0.02, 0.015];
+        let terms = Terms { ambient: [0.01, 0.02, 0.015], indirect: [0.8, 1.1, 0.6] };
         let vis_of = |ls: &[Light]| {
             let mut v = Visibility::default();
             v.update(ls, 0.0, pb.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &pb, q)).collect())).unwrap();
             v
         };
         let vis = vis_of(&lights);
-        let ev = evaluate(&pb, &vis, &lights, ambient);
+        let ev = evaluate(&pb, &vis, &lights, terms);
         assert!(ev.f > 0.0);
         for j in 0..lights.len() {
             for q in 0..6 {
@@ -300,7 +327,7 @@ mod tests {
                     b[j].rgb[q - 3] -= h;
                 }
                 // Same visibility (no shadow boundary crossing for these small steps).
-                let fd = (evaluate(&pb, &vis, &a, ambient).f - evaluate(&pb, &vis, &b, ambient).f) / (2.0 * h as f64);
+                let fd = (evaluate(&pb, &vis, &a, terms).f - evaluate(&pb, &vis, &b, terms).f) / (2.0 * h as f64);
                 let an = ev.grad[j][q];
                 let scale = an.abs().max(fd.abs()).max(1e-9 * ev.f);
                 assert!((fd - an).abs() <= 2e-3 * scale, "light {j} param {q}: analytic {an} vs central difference {fd}");
@@ -308,12 +335,16 @@ mod tests {
         }
         for c in 0..3 {
             let h = 1e-4f32;
-            let mut a = ambient;
-            let mut b = ambient;
-            a[c] += h;
-            b[c] -= h;
+            let (mut a, mut b) = (terms, terms);
+            a.ambient[c] += h;
+            b.ambient[c] -= h;
             let fd = (evaluate(&pb, &vis, &lights, a).f - evaluate(&pb, &vis, &lights, b).f) / (2.0 * h as f64);
             assert!((fd - ev.grad_ambient[c]).abs() <= 2e-3 * fd.abs().max(ev.grad_ambient[c].abs()), "ambient {c}: {} vs {fd}", ev.grad_ambient[c]);
+            let (mut a, mut b) = (terms, terms);
+            a.indirect[c] += h;
+            b.indirect[c] -= h;
+            let fd = (evaluate(&pb, &vis, &lights, a).f - evaluate(&pb, &vis, &lights, b).f) / (2.0 * h as f64);
+            assert!((fd - ev.grad_indirect[c]).abs() <= 2e-3 * fd.abs().max(ev.grad_indirect[c].abs()), "indirect {c}: {} vs {fd}", ev.grad_indirect[c]);
         }
     }
 }

@@ -1,6 +1,7 @@
-//! The whole relight: read, subdivide, project the target, build the BVH, choose the
-//! starting lights, run the scheme's phases, prune and merge, decide on the ambient term,
-//! write the glTF, and gather the report.
+//! The whole relight: read, subdivide, build the target (luxel rows or the vertex
+//! projection), build the BVH, gather the indirect light, choose the starting lights, run
+//! the scheme's phases, prune and merge, decide on the indirect and ambient terms, write
+//! the glTF, and gather the report.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -47,6 +48,19 @@ pub enum Init {
     Input,
 }
 
+/// Whether the model has the indirect term ([`crate::indirect`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Optional {
+    /// Only when it lowers the relative error by at least [`TERM_GAIN`].
+    Auto,
+    Off,
+    On,
+}
+
+/// A global term (indirect, ambient) stays in the model with `auto` only when it lowers
+/// the relative error by at least this much (absolute).
+pub const TERM_GAIN: f64 = 0.005;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BackendChoice {
     Auto,
@@ -71,6 +85,9 @@ pub struct Options {
     pub time_limit: Option<Duration>,
     pub backend: BackendChoice,
     pub seed: u64,
+    pub indirect: Optional,
+    /// Gather rays per row for the indirect term.
+    pub indirect_rays: usize,
 }
 
 impl Default for Options {
@@ -88,6 +105,8 @@ impl Default for Options {
             time_limit: None,
             backend: BackendChoice::Auto,
             seed: 1,
+            indirect: Optional::Auto,
+            indirect_rays: 16,
         }
     }
 }
@@ -140,6 +159,10 @@ pub struct Report {
     pub lights: Vec<LightReport>,
     pub ambient: Option<[f32; 3]>,
     pub ambient_note: String,
+    /// Fitted scale `k_c` of the gathered indirect radiance, when the model kept it.
+    pub indirect: Option<[f32; 3]>,
+    pub indirect_note: String,
+    pub indirect_gather: Option<crate::indirect::GatherStats>,
     pub pruned: usize,
     pub merged: usize,
     pub auto: Option<init::AutoStats>,
@@ -253,7 +276,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     progress.stage("target");
     let (lo, hi) = scene.mesh.bounds();
     let diag = (hi - lo).length();
-    let (pb, tstats, luxel_stats, target_backend) = match opts.target {
+    let (mut pb, tstats, luxel_stats, target_backend) = match opts.target {
         TargetSpace::Vertex => {
             let (tg, tstats, target_backend) = project(&plan, &scene)?;
             (Problem::new(&scene.mesh, &tg, diag), tstats, None, target_backend)
@@ -275,6 +298,11 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let bvh = Bvh::build(&scene.mesh);
     st.done("bvh");
 
+    progress.stage("indirect");
+    let indirect_gather = (opts.indirect != Optional::Off).then(|| crate::indirect::gather(&scene, &bvh, &mut pb, opts.indirect_rays));
+    st.done("indirect");
+    let pb = pb;
+
     let mut backend: Box<dyn Backend + '_> = match plan {
         Plan::Cpu => Box::new(Cpu { pb: &pb, bvh: &bvh }),
         Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &pb, &bvh)?),
@@ -293,6 +321,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             (Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32) }, l.locked, k)
         })
         .collect();
+    // The indirect term is part of the model from the start (lights are placed for what it
+    // leaves unexplained); `auto` removes it after the optimisation if it does not help.
+    let globals0 = crate::fit::Globals { indirect: (opts.indirect != Optional::Off).then_some([1.0; 3]), ambient: None };
     let mut auto_stats = None;
     let (start, sources): (Vec<(Light, bool)>, Vec<Option<usize>>) = match &opts.init {
         Init::Input => {
@@ -310,7 +341,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, globals0, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
@@ -321,6 +352,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     let mut fit = Fitter::new(&pb, &bvh, backend.as_mut(), lo, hi);
     fit.deadline = deadline;
+    fit.globals = globals0;
     let mut sources = sources;
     for (l, locked) in &start {
         fit.add_light(*l, *locked);
@@ -343,8 +375,10 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     st.done("optimise");
 
-    // As few lights as the scene needs; ambient only where it lowers the error.
+    // The indirect term only where it lowers the error; then as few lights as the scene
+    // needs; then the ambient term, again only where it lowers the error.
     progress.stage("prune");
+    let indirect_note = decide(&mut fit, |g, on| g.indirect = on.then_some([1.0; 3]), opts.indirect);
     let mut pruned = 0;
     let mut merged = 0;
     if !matches!(opts.init, Init::Grid(_)) || opts.scheme == "default" {
@@ -354,19 +388,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         // Re-associate input sources by position (pruning and merging removed entries).
         sources = fit.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
     }
-    let err_no_ambient = fit.fit_intensities();
-    let saved = (fit.lights.clone(), fit.vis.clone());
-    fit.ambient = Some([1e-6; 3]);
-    let err_ambient = fit.fit_intensities();
-    let ambient_note;
-    if err_ambient < err_no_ambient - 0.005 {
-        ambient_note = format!("kept: relative error {err_no_ambient:.4} -> {err_ambient:.4}");
-    } else {
-        fit.ambient = None;
-        (fit.lights, fit.vis) = saved;
-        ambient_note = format!("not used: relative error {err_no_ambient:.4} -> {err_ambient:.4} with it");
-    }
-    if (pruned + merged > 0 || fit.ambient.is_some()) && !fit.out_of_time() {
+    let ambient_note = decide(&mut fit, |g, on| g.ambient = on.then_some([1e-6; 3]), Optional::Auto);
+    if (pruned + merged > 0 || fit.globals != crate::fit::Globals::default()) && !fit.out_of_time() {
         let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(40).min(40) };
         fit.run_phase("polish", polish);
     }
@@ -404,10 +427,13 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let history = fit.history.clone();
     let evaluations = fit.evaluations;
     let rays = fit.vis.rays;
-    let ambient = fit.ambient;
+    let ambient = fit.globals.ambient;
+    let indirect = fit.globals.indirect;
     drop(fit);
     progress.stage("write");
-    let scene_extras = json!({ "rel_error": final_eval.rel_error, "lights": out_lights.len(), "ambient": ambient });
+    // With the indirect term, the lights reproduce the data only together with the bounced
+    // light that a renderer with global illumination adds: say so for the user.
+    let scene_extras = json!({ "rel_error": final_eval.rel_error, "lights": out_lights.len(), "ambient": ambient, "indirect_scale": indirect, "lights_are": if indirect.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" } });
     lights_out::write(&opts.input, &opts.output, &out_lights, scene_extras)?;
     st.done("write");
 
@@ -451,6 +477,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         lights: light_reports,
         ambient,
         ambient_note,
+        indirect,
+        indirect_note,
+        indirect_gather,
         pruned,
         merged,
         auto: auto_stats,
@@ -462,6 +491,43 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         total_time_s: t_all.elapsed().as_secs_f64(),
         skipped_primitives: scene.skipped,
     })
+}
+
+/// Decides whether a global term stays in the model: with `auto`, when the exact
+/// intensity fit with it lowers the relative error by at least [`TERM_GAIN`] against the
+/// same fit without it (whether or not the term is in the model on entry). Returns the
+/// note for the report.
+fn decide(fit: &mut Fitter, set: impl Fn(&mut crate::fit::Globals, bool), choice: Optional) -> String {
+    if choice == Optional::Off {
+        set(&mut fit.globals, false);
+        return "off".into();
+    }
+    let entry = fit.globals;
+    let variant = |on: bool, fit: &mut Fitter| {
+        let mut g = entry;
+        set(&mut g, on);
+        // Keep a fitted value when the term is already in the model.
+        if g.ambient.is_some() && entry.ambient.is_some() {
+            g.ambient = entry.ambient;
+        }
+        if g.indirect.is_some() && entry.indirect.is_some() {
+            g.indirect = entry.indirect;
+        }
+        fit.globals = g;
+        let e = fit.fit_intensities();
+        (e, fit.lights.clone(), fit.vis.clone(), fit.globals)
+    };
+    let without = variant(false, fit);
+    let with = variant(true, fit);
+    let (e0, e1) = (without.0, with.0);
+    let keep = choice == Optional::On || e1 < e0 - TERM_GAIN;
+    let chosen = if keep { with } else { without };
+    (_, fit.lights, fit.vis, fit.globals) = chosen;
+    match (choice, keep) {
+        (Optional::On, _) => format!("on: relative error {e0:.4} without, {e1:.4} with it"),
+        (_, true) => format!("kept: relative error {e0:.4} -> {e1:.4}"),
+        (_, false) => format!("not used: relative error {e0:.4} -> {e1:.4} with it"),
+    }
 }
 
 fn energy_shares(pb: &Problem, fit: &Fitter) -> Vec<f64> {
