@@ -305,7 +305,9 @@ impl<'a> Fitter<'a> {
     /// Runs one phase; returns its summary (also appended to `phases`).
     pub fn run_phase(&mut self, name: &str, phase: Phase) -> PhaseSummary {
         let t0 = Instant::now();
-        let before = self.eval().rel_error;
+        let start_eval = self.eval();
+        let before = start_eval.rel_error;
+        let start = (self.lights.clone(), self.globals, start_eval.f + self.penalty(&self.lights).0);
         let x0 = self.encode();
         let mask = self.mask(phase.params, phase.params.intensity);
         let phase_no = self.phase_index;
@@ -362,7 +364,14 @@ impl<'a> Fitter<'a> {
         let (lights, globals) = self.decode(&outcome.x);
         self.lights = lights;
         self.globals = globals;
-        let after = self.eval().rel_error;
+        let mut end_eval = self.eval();
+        // A phase never leaves things worse than it found them (visibility changes can make
+        // an optimiser's last accepted step worse once re-traced).
+        if end_eval.f + self.penalty(&self.lights).0 > start.2 {
+            (self.lights, self.globals) = (start.0, start.1);
+            end_eval = self.eval();
+        }
+        let after = end_eval.rel_error;
         let s = PhaseSummary {
             name: name.to_string(),
             phase,

@@ -403,6 +403,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let shares = energy_shares(&pb, &fit);
     let lights: Vec<Light> = fit.lights.clone();
     let locked = fit.locked.clone();
+    let names = light_names(&sources.iter().map(|s| s.map(|k| scene.lights[k].name.as_str())).collect::<Vec<_>>(), lights.len());
     let out_lights: Vec<OutLight> = lights
         .iter()
         .enumerate()
@@ -417,7 +418,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
                 position,
                 rgb: l.rgb.map(|c| c as f64),
                 source_node: src.map(|s| (s.node, s.parent_world)),
-                name: format!("light_{j:03}"),
+                // An input light keeps its name (the user's); new ones are numbered.
+                name: names[j].clone(),
                 extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
                 locked: locked[j],
             }
@@ -493,6 +495,26 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     })
 }
 
+/// Output light names: a light continuing an input light keeps its (non-empty, first
+/// seen) name, the user's; the others are `light_NNN`, numbered in order, skipping names
+/// already taken. All distinct.
+fn light_names(source_names: &[Option<&str>], count: usize) -> Vec<String> {
+    let mut used = std::collections::HashSet::new();
+    let mut names: Vec<Option<String>> = (0..count)
+        .map(|j| source_names.get(j).copied().flatten().filter(|n| !n.is_empty() && used.insert(n.to_string())).map(str::to_string))
+        .collect();
+    let mut k = 0;
+    for n in names.iter_mut().filter(|n| n.is_none()) {
+        while used.contains(&format!("light_{k:03}")) {
+            k += 1;
+        }
+        let name = format!("light_{k:03}");
+        used.insert(name.clone());
+        *n = Some(name);
+    }
+    names.into_iter().map(|n| n.expect("every light named above")).collect()
+}
+
 /// Decides whether a global term stays in the model: with `auto`, when the exact
 /// intensity fit with it lowers the relative error by at least [`TERM_GAIN`] against the
 /// same fit without it (whether or not the term is in the model on entry). Returns the
@@ -543,4 +565,15 @@ fn energy_shares(pb: &Problem, fit: &Fitter) -> Vec<f64> {
     }
     let total: f64 = e.iter().sum();
     e.iter().map(|v| if total > 0.0 { v / total } else { 0.0 }).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::light_names;
+
+    #[test]
+    fn light_names_keep_the_users_and_stay_distinct() {
+        let n = light_names(&[Some("lamp"), None, Some("light_001"), Some("lamp"), Some("")], 6);
+        assert_eq!(n, ["lamp", "light_000", "light_001", "light_002", "light_003", "light_004"]);
+    }
 }
