@@ -26,10 +26,15 @@ impl Entity {
     pub fn number(&self, key: &str) -> Option<f64> {
         self.get(key)?.trim().parse::<f64>().ok().filter(|x| x.is_finite())
     }
-    fn set(&mut self, key: String, value: String) {
-        match self.pairs.iter_mut().find(|(k, _)| *k == key) {
-            Some(slot) => slot.1 = value,
-            None => self.pairs.push((key, value)),
+    /// Sets `key`, with `index` (key -> position in `pairs`) kept alongside so that an
+    /// entity with many keys parses in linear time.
+    fn set(&mut self, index: &mut std::collections::HashMap<String, usize>, key: String, value: String) {
+        match index.get(&key) {
+            Some(&i) => self.pairs[i].1 = value,
+            None => {
+                index.insert(key.clone(), self.pairs.len());
+                self.pairs.push((key, value));
+            }
         }
     }
 }
@@ -41,6 +46,7 @@ pub fn parse(text: &str) -> Result<Vec<Entity>, String> {
     let mut line = 1usize;
     let mut current: Option<Entity> = None;
     let mut pending_key: Option<String> = None;
+    let mut keys = std::collections::HashMap::new();
     while let Some((_, c)) = chars.next() {
         match c {
             '\n' => line += 1,
@@ -58,6 +64,7 @@ pub fn parse(text: &str) -> Result<Vec<Entity>, String> {
                     return Err(format!("line {line}: '{{' inside an entity"));
                 }
                 current = Some(Entity::default());
+                keys.clear();
             }
             '}' => {
                 let Some(e) = current.take() else {
@@ -89,7 +96,7 @@ pub fn parse(text: &str) -> Result<Vec<Entity>, String> {
                 };
                 match pending_key.take() {
                     None => pending_key = Some(s),
-                    Some(k) => e.set(k, s),
+                    Some(k) => e.set(&mut keys, k, s),
                 }
             }
             other => return Err(format!("line {line}: unexpected character {other:?}")),
@@ -113,6 +120,23 @@ mod tests {
         assert_eq!(e[1].vec3("origin"), Some([1.0, 2.0, 3.0]));
         assert_eq!(e[1].number("light"), Some(400.0));
         assert_eq!(e[1].pairs.len(), 2);
+    }
+
+    /// One entity with 100k distinct keys (about 2 MB of text, within a map's size):
+    /// parsing stays linear, not quadratic in the number of keys.
+    #[test]
+    fn many_keys_parse_in_linear_time() {
+        let mut text = String::from("{\n");
+        for i in 0..100_000 {
+            text.push_str(&format!("\"key{i}\" \"{i}\"\n"));
+        }
+        text.push_str("\"key7\" \"last\"\n}\n");
+        let t = std::time::Instant::now();
+        let e = parse(&text).unwrap();
+        assert!(t.elapsed() < std::time::Duration::from_secs(2), "{:?}", t.elapsed());
+        assert_eq!(e[0].pairs.len(), 100_000);
+        assert_eq!(e[0].get("key7"), Some("last"));
+        assert_eq!(e[0].pairs[7], ("key7".to_string(), "last".to_string()));
     }
 
     #[test]

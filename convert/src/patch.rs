@@ -367,6 +367,9 @@ pub fn tessellate_all(patches: &[PatchInput], tolerance: f64, vertex_budget: usi
     Ok(out)
 }
 
+/// Most spatial-hash cells one T-junction pass may visit.
+pub const T_JUNCTION_WORK: u64 = 1 << 26;
+
 /// Largest distance (in the units of the positions) at which a boundary vertex of one
 /// patch counts as lying on another patch's boundary edge.
 const WELD_EPS: f64 = 1e-3;
@@ -415,6 +418,9 @@ fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
     for (i, (_, p)) in boundary_verts.iter().enumerate() {
         grid.entry(cell(p.map(|x| x as f64))).or_default().push(i);
     }
+    // Cells visited in this pass, at most: hostile geometry leaves T-junctions in place
+    // rather than taking unbounded time (real maps use a tiny fraction of this).
+    let mut work_left: u64 = T_JUNCTION_WORK;
     // Per (patch, a, b) boundary edge: vertices to insert, with their fraction along it.
     let mut inserts: BTreeMap<(usize, u32, u32), Vec<(f64, [f32; 3])>> = BTreeMap::new();
     for e in &edges {
@@ -427,27 +433,46 @@ fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
             continue;
         }
         let (ca, cb) = (cell(a), cell(b));
-        let mut found: Vec<(f64, [f32; 3])> = Vec::new();
-        for x in ca[0].min(cb[0]) - 1..=ca[0].max(cb[0]) + 1 {
-            for y in ca[1].min(cb[1]) - 1..=ca[1].max(cb[1]) + 1 {
-                for z in ca[2].min(cb[2]) - 1..=ca[2].max(cb[2]) + 1 {
-                    for &vi in grid.get(&[x, y, z]).into_iter().flatten() {
-                        let (vp, v) = boundary_verts[vi];
-                        if vp == e.patch || v == pa || v == pb {
-                            continue;
-                        }
-                        let p = v.map(|x| x as f64);
-                        let s = dot(sub(p, a), ab) / len2;
-                        if s <= 1e-6 || s >= 1.0 - 1e-6 {
-                            continue;
-                        }
-                        let q = [a[0] + ab[0] * s, a[1] + ab[1] * s, a[2] + ab[2] * s];
-                        let d = sub(p, q);
-                        if dot(d, d) <= WELD_EPS * WELD_EPS && !found.iter().any(|f| f.1 == v) {
-                            found.push((s, v));
-                        }
+        let lo: [i64; 3] = std::array::from_fn(|k| ca[k].min(cb[k]).saturating_sub(1));
+        let hi: [i64; 3] = std::array::from_fn(|k| ca[k].max(cb[k]).saturating_add(1));
+        // The cells of the edge's box, or, when the box holds more cells than there are
+        // occupied ones (a long edge: hostile coordinates can make it astronomically
+        // long), the occupied cells inside the box. Either way the work per edge is at
+        // most the number of occupied cells, and the whole pass has a budget.
+        let box_cells = (0..3).fold(1u64, |n, k| n.saturating_mul(hi[k].abs_diff(lo[k]).saturating_add(1)));
+        let cost = box_cells.min(grid.len() as u64);
+        if cost > work_left {
+            break;
+        }
+        work_left -= cost;
+        let cells: Vec<&Vec<usize>> = if box_cells <= grid.len() as u64 {
+            let mut v = Vec::new();
+            for x in lo[0]..=hi[0] {
+                for y in lo[1]..=hi[1] {
+                    for z in lo[2]..=hi[2] {
+                        v.extend(grid.get(&[x, y, z]));
                     }
                 }
+            }
+            v
+        } else {
+            grid.iter().filter(|(c, _)| (0..3).all(|k| (lo[k]..=hi[k]).contains(&c[k]))).map(|(_, v)| v).collect()
+        };
+        let mut found: Vec<(f64, [f32; 3])> = Vec::new();
+        for &vi in cells.into_iter().flatten() {
+            let (vp, v) = boundary_verts[vi];
+            if vp == e.patch || v == pa || v == pb {
+                continue;
+            }
+            let p = v.map(|x| x as f64);
+            let s = dot(sub(p, a), ab) / len2;
+            if s <= 1e-6 || s >= 1.0 - 1e-6 {
+                continue;
+            }
+            let q = [a[0] + ab[0] * s, a[1] + ab[1] * s, a[2] + ab[2] * s];
+            let d = sub(p, q);
+            if dot(d, d) <= WELD_EPS * WELD_EPS && !found.iter().any(|f| f.1 == v) {
+                found.push((s, v));
             }
         }
         if !found.is_empty() {
@@ -698,6 +723,21 @@ mod tests {
         let edge_a: Vec<[f32; 3]> = (0..t[0].height).map(|r| t[0].verts[r * t[0].width + t[0].width - 1].xyz).collect();
         let edge_b: Vec<[f32; 3]> = (0..t[1].height).map(|r| t[1].verts[r * t[1].width].xyz).collect();
         assert_eq!(edge_a, edge_b);
+    }
+
+    /// Found by fuzzing (a mutated control point of a real map): a patch stretched over
+    /// millions of units made the T-junction search enumerate every spatial-hash cell of
+    /// each long boundary edge's box (billions per edge): the conversion never finished.
+    /// Now the work per edge is bounded by the occupied cells, and the pass by a budget.
+    #[test]
+    fn huge_patch_is_tessellated_in_bounded_time() {
+        let a = arch(0.0, 64.0, 0.0);
+        let mut b = arch(64.0, 128.0, 16.0);
+        b[8].xyz = [1.0e7, 1.0e7, 1.0e7];
+        let t0 = std::time::Instant::now();
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &a }, PatchInput { width: 3, height: 3, ctrl: &b }], 4.0, 1 << 20).unwrap();
+        assert!(t0.elapsed() < std::time::Duration::from_secs(5), "{:?}", t0.elapsed());
+        assert!(t[1].verts.len() > 100, "the stretched patch is still subdivided");
     }
 
     #[test]
