@@ -11,9 +11,11 @@
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
 #                        relight of the sample and oa_dm1 (out/bench/relight.md)
 #   make sample          regenerate the bundled sample from samples/src (committed)
+#   make fuzz            build the cargo-fuzz targets (fuzz/), seed them from the sample and
+#                        OpenArena, run each for FUZZ_SECONDS (default 60); see docs/limits.md
 #
 # Variables: MAP, GAME_DIR (defaults to the fetched OpenArena baseoa), CONVERT_FLAGS,
-# RELIGHT_FLAGS.
+# RELIGHT_FLAGS, FUZZ_SECONDS.
 
 CARGO      ?= cargo
 BIN        := target/release/q3gltf
@@ -27,8 +29,9 @@ BLENDER_VENV := .venv-blender
 RENDER_MAP ?= oa_dm1
 RENDER_FLAGS ?=
 SAMPLE_BSP := samples/sample/maps/sample.bsp
+FUZZ_SECONDS ?= 60
 
-.PHONY: all build sample test test-rust test-python python-deps node-deps maps bench clean data
+.PHONY: all build sample test test-rust test-python python-deps node-deps maps bench clean data fuzz
 .PHONY: test-blender blender-deps render
 .DELETE_ON_ERROR:
 
@@ -112,6 +115,10 @@ bench: build data
 	line="make -j2 maps: $$n maps in $$(awk "BEGIN{printf \"%.1f\", $$end - $$start}") s (2 jobs, includes start-up of each process)"; \
 	echo "$$line"; echo "$$line" >> $(OUT)/bench/convert.md
 	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
+
+# Fuzzing (cargo-fuzz, libFuzzer): every parser for FUZZ_SECONDS each.
+fuzz: build data
+	FUZZ_SECONDS=$(FUZZ_SECONDS) bash fuzz/run.sh
 
 clean:
 	rm -rf $(OUT)
