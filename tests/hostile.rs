@@ -246,3 +246,21 @@ fn failed_write_leaves_nothing_and_input_is_never_overwritten() {
     assert_eq!(tree(&d), vec!["m.bsp", "m.glb", "out_textures", "x/"]);
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// A map file over the 1 GiB limit is refused from its size, before anything is read (a
+/// sparse file: no disk space used, and reading it would take seconds).
+#[test]
+fn oversized_map_is_refused_before_reading() {
+    let d = tmp("huge");
+    let p = d.join("huge.bsp");
+    let f = std::fs::File::create(&p).unwrap();
+    f.set_len((1 << 30) + 1).unwrap();
+    drop(f);
+    let t = Instant::now();
+    let o = Command::new(exe()).arg("convert").arg(&p).args(["-q", "-o"]).arg(d.join("o.glb")).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("huge.bsp") && stderr.contains("limit"), "{stderr}");
+    assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+    std::fs::remove_dir_all(&d).unwrap();
+}
