@@ -64,11 +64,26 @@ impl Staged {
     pub fn add(&mut self, path: &Path, bytes: &[u8]) -> io::Result<()> {
         let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let name = path.file_name().ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "output path has no file name"))?;
-        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let tmp = dir.join(format!(".{}.tmp{}-{n}", name.to_string_lossy(), std::process::id()));
-        let slot = cleanup::register(&tmp);
-        self.files.push((tmp.clone(), path.to_path_buf(), slot));
-        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+        // A fresh name (a stale temporary of an earlier process with the same id is
+        // left alone); never follows an existing file or link.
+        // Registered for the signal handler before it exists, so no moment is uncovered.
+        let mut f = loop {
+            let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+            let tmp = dir.join(format!(".{}.tmp{}-{n}", name.to_string_lossy(), std::process::id()));
+            let slot = cleanup::register(&tmp);
+            match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+                Ok(f) => {
+                    self.files.push((tmp, path.to_path_buf(), slot));
+                    break f;
+                }
+                Err(e) => {
+                    cleanup::unregister(slot);
+                    if e.kind() != io::ErrorKind::AlreadyExists || n % 1000 == 999 {
+                        return Err(e);
+                    }
+                }
+            }
+        };
         f.write_all(bytes)?;
         f.sync_all()?;
         test_delay();
