@@ -1,8 +1,9 @@
 // Forward model, objective and gradient (relight/src/model.rs is the CPU reference and
 // documents the math). One invocation per problem vertex; each workgroup reduces its
 // vertices' contributions and writes one block of partial sums:
-//   block[wg * stride + 8 * j + 0..6]  = dF/dp_j (3), dF/dI_j (3)
-//   block[wg * stride + 8 * K + 0..8]  = F, sum A w (x - t)^2, dF/da (3), dF/dk (3)
+//   block[wg * stride + 8 * j + 0..6]        = dF/dp_j (3), dF/dI_j (3)
+//   block[wg * stride + 8 * K + 0..6]        = dF/dw (3), dF/dS (3) of the sun
+//   block[wg * stride + 8 * (K + 1) + 0..8]  = F, sum A w (x - t)^2, dF/da (3), dF/dk (3)
 // Needs problem.wgsl prepended.
 
 struct Params {
@@ -12,6 +13,10 @@ struct Params {
     stride: u32,
     ambient: vec4<f32>,
     indirect: vec4<f32>,
+    // xyz: unit direction towards the sun; w: 1 when the model has a sun.
+    sun_dir: vec4<f32>,
+    // Irradiance at normal incidence, W/m^2.
+    sun_rgb: vec4<f32>,
     eps: f32,
     pad0: f32,
     pad1: f32,
@@ -23,6 +28,7 @@ struct Params {
 @group(0) @binding(2) var<storage, read> lights: array<vec4<f32>>; // pos, rgb per light
 @group(0) @binding(3) var<storage, read> vis: array<u32>;
 @group(0) @binding(4) var<storage, read_write> partial: array<f32>;
+@group(0) @binding(5) var<storage, read> sun_vis: array<u32>;
 
 const WG: u32 = 64u;
 const PI: f32 = 3.14159265358979;
@@ -54,6 +60,10 @@ fn visible(j: u32, i: u32) -> bool {
     return ((vis[j * prm.words + (i >> 5u)] >> (i & 31u)) & 1u) == 1u;
 }
 
+fn sun_visible(i: u32) -> bool {
+    return prm.sun_dir.w > 0.5 && ((sun_vis[i >> 5u] >> (i & 31u)) & 1u) == 1u;
+}
+
 fn reduce(lid: u32) {
     for (var s = WG / 2u; s > 0u; s = s >> 1u) {
         workgroupBarrier();
@@ -74,8 +84,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if (live) {
         v = verts[i];
     }
-    // Irradiance (before 1/pi) per channel.
+    // Irradiance (before 1/pi) per channel: the sun, then the point lights.
     var e = vec3<f32>(0.0);
+    var cos_sun = 0.0;
+    if (live && sun_visible(i)) {
+        cos_sun = max(dot(v.normal, prm.sun_dir.xyz), 0.0);
+        e = prm.sun_rgb.xyz * cos_sun;
+    }
     if (live) {
         for (var j = 0u; j < prm.k; j = j + 1u) {
             if (visible(j, i)) {
@@ -128,11 +143,31 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         workgroupBarrier();
     }
+    // The sun's gradient.
+    var gw = vec3<f32>(0.0);
+    var gs = vec3<f32>(0.0);
+    if (live && cos_sun > 0.0) {
+        gs = rho_a * cos_sun;
+        gw = v.normal * dot(rho_a, prm.sun_rgb.xyz);
+    }
+    red_a[lid] = vec4<f32>(gw, 0.0);
+    red_b[lid] = vec4<f32>(gs, 0.0);
+    reduce(lid);
+    if (lid == 0u) {
+        let o = base + 8u * prm.k;
+        partial[o] = red_a[0].x;
+        partial[o + 1u] = red_a[0].y;
+        partial[o + 2u] = red_a[0].z;
+        partial[o + 3u] = red_b[0].x;
+        partial[o + 4u] = red_b[0].y;
+        partial[o + 5u] = red_b[0].z;
+    }
+    workgroupBarrier();
     red_a[lid] = vec4<f32>(f, num, gk.x, gk.y);
     red_b[lid] = vec4<f32>(ga, gk.z);
     reduce(lid);
     if (lid == 0u) {
-        let o = base + 8u * prm.k;
+        let o = base + 8u * (prm.k + 1u);
         partial[o] = red_a[0].x;
         partial[o + 1u] = red_a[0].y;
         partial[o + 2u] = red_b[0].x;

@@ -64,6 +64,11 @@ pub struct RelightArgs {
     /// like its lightmaps; `off` makes the lights carry the bounced light too.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub indirect: String,
+    /// A sun (directional light) for maps with sky: `auto` searches one when the scene has
+    /// sky surfaces or a directional light (with `--init input`: starts from the file's)
+    /// and keeps it where it lowers the error; written as a KHR directional light in lux.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub sun: String,
     /// Gather rays per target row for `--indirect` (rounded up to a square).
     #[arg(long = "indirect-rays", default_value_t = 16)]
     pub indirect_rays: usize,
@@ -189,6 +194,11 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
             _ => Optional::Auto,
         },
         indirect_rays: a.indirect_rays.clamp(1, 1024),
+        sun: match a.sun.as_str() {
+            "on" => Optional::On,
+            "off" => Optional::Off,
+            _ => Optional::Auto,
+        },
     })
 }
 
@@ -227,6 +237,10 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
         ),
     }
     println!("  lights    {} (pruned {}, merged {}); indirect {}; ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.indirect_note, rep.ambient_note);
+    match &rep.sun {
+        Some(s) => println!("  sun       elevation {:.1} deg, azimuth {:.1} deg, {:.0} lux ({})", s.elevation_deg, s.azimuth_deg, s.illuminance_lux, rep.sun_note),
+        None => println!("  sun       {}", rep.sun_note),
+    }
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));

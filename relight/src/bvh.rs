@@ -157,6 +157,12 @@ impl Bvh {
         best
     }
 
+    /// A length that crosses the whole scene from anywhere inside it (twice the root
+    /// box's diagonal), m.
+    pub fn reach(&self) -> f32 {
+        self.nodes.first().map_or(1.0, |r| 2.0 * (Vec3::from(r.max) - Vec3::from(r.min)).length().max(0.5))
+    }
+
     /// Distance from `p` to the nearest triangle and the nearest point (meters).
     pub fn nearest(&self, p: Vec3) -> Option<(f32, Vec3)> {
         let mut best: Option<(f32, Vec3)> = None;

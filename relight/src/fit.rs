@@ -3,8 +3,13 @@
 //!
 //! Parameters per light (7): position `q` in units of `unit` meters around the scene
 //! centre, log intensity `s`, log colour `g_c`; `I_c = exp(s + g_c)` is positive by
-//! construction. The optional global terms ([`Globals`]: ambient `a_c`, indirect scale
-//! `k_c`) add 3 parameters each, also as logarithms.
+//! construction. The optional global terms ([`Globals`]) add 3 parameters each: the
+//! ambient `a_c` as a logarithm, the indirect scale `k_c` in (0, 1) as a logit (the data's
+//! bounced light can be present in full, `k = 1`, or scaled down, as q3map2's
+//! `-bouncescale` does, but never more: above 1 the term would only imitate the target's
+//! shape); the sun adds 6: elevation `theta` and
+//! azimuth `phi` of its direction `w = (cos theta cos phi, sin theta, cos theta sin phi)`
+//! (radians, glTF's Y up), then log intensity and log colour like a light.
 //! Penalties (scaled to the objective of an unlit scene `F0`): a light closer than
 //! `min_dist` to a surface pays `F0 (1 - dist/min_dist)^2`; a light outside the scene's box
 //! pays `F0 (outside/unit)^2` per axis.
@@ -15,7 +20,7 @@ use glam::Vec3;
 
 use crate::backend::Backend;
 use crate::bvh::Bvh;
-use crate::model::{Eval, Light, Problem, Terms};
+use crate::model::{Eval, Light, Problem, Sun, Terms};
 use crate::optim::{self, Stop};
 use crate::visibility::Visibility;
 
@@ -28,16 +33,27 @@ pub struct Globals {
     pub ambient: Option<[f32; 3]>,
     /// Scale of the gathered indirect radiance per channel.
     pub indirect: Option<[f32; 3]>,
+    /// A directional light.
+    pub sun: Option<Sun>,
 }
 
 impl Globals {
     pub fn terms(&self) -> Terms {
-        Terms { ambient: self.ambient.unwrap_or([0.0; 3]), indirect: self.indirect.unwrap_or([0.0; 3]) }
+        Terms { ambient: self.ambient.unwrap_or([0.0; 3]), indirect: self.indirect.unwrap_or([0.0; 3]), sun: self.sun }
     }
-    /// How many parameters (and exact-fit columns) the terms in use add.
-    fn count(&self) -> usize {
-        self.ambient.is_some() as usize + self.indirect.is_some() as usize
-    }
+}
+
+/// `(theta, phi)` of a unit direction (see the module docs).
+pub fn sun_angles(w: Vec3) -> (f64, f64) {
+    let w = w.as_dvec3().normalize_or(glam::DVec3::Y);
+    (w.y.clamp(-1.0, 1.0).asin(), w.z.atan2(w.x))
+}
+
+/// The direction of `(theta, phi)` and its derivatives by theta and by phi.
+pub fn sun_direction(theta: f64, phi: f64) -> (Vec3, glam::DVec3, glam::DVec3) {
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    (glam::DVec3::new(ct * cp, st, ct * sp).as_vec3(), glam::DVec3::new(-st * cp, ct, -st * sp), glam::DVec3::new(-ct * sp, 0.0, ct * cp))
 }
 
 /// Which light parameters a phase changes.
@@ -134,6 +150,10 @@ pub struct Fitter<'a> {
     pub on_iter: Option<Box<dyn FnMut(&IterRecord) + 'a>>,
     /// The first backend error; once set, evaluations return NaN and every loop stops.
     pub failure: Option<crate::error::Error>,
+    /// Sky flag of every mesh triangle: sunlight passes sky surfaces.
+    pub sky: Vec<bool>,
+    /// The sun is re-traced when its direction turned more than this, radians.
+    pub sun_retrace_tol: f32,
 }
 
 impl<'a> Fitter<'a> {
@@ -161,6 +181,8 @@ impl<'a> Fitter<'a> {
             phase_index: 0,
             on_iter: None,
             failure: None,
+            sky: Vec::new(),
+            sun_retrace_tol: 1e-3,
         }
     }
 
@@ -181,6 +203,8 @@ impl<'a> Fitter<'a> {
             return failed;
         }
         let backend = &mut *self.backend;
+        let (bvh, pb, sky) = (self.bvh, self.pb, &self.sky);
+        self.vis.update_sun(globals.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| crate::visibility::trace_sun(bvh, pb, d, sky));
         let r = self.vis.update(lights, self.retrace_tol, n, &mut |p| backend.trace(p)).and_then(|_| {
             self.evaluations += 1;
             self.backend.evaluate(&self.vis, lights, globals.terms())
@@ -201,6 +225,8 @@ impl<'a> Fitter<'a> {
         }
         let n = self.pb.len();
         let backend = &mut *self.backend;
+        let (bvh, pb, sky) = (self.bvh, self.pb, &self.sky);
+        self.vis.update_sun(self.globals.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| crate::visibility::trace_sun(bvh, pb, d, sky));
         if let Err(e) = self.vis.update(&self.lights, self.retrace_tol, n, &mut |p| backend.trace(p)) {
             self.failure = Some(e);
         }
@@ -208,7 +234,7 @@ impl<'a> Fitter<'a> {
 
     /// Like `eval_lights` but with the visibility cache as it is (no re-trace).
     pub fn eval_frozen(&mut self, lights: &[Light], globals: Globals) -> Eval {
-        if self.failure.is_some() || self.vis.bits.len() != lights.len() {
+        if self.failure.is_some() || self.vis.bits.len() != lights.len() || self.vis.sun.is_some() != globals.sun.is_some() {
             return self.eval_lights(lights, globals);
         }
         self.evaluations += 1;
@@ -231,8 +257,17 @@ impl<'a> Fitter<'a> {
                 x.push(((l.rgb[c] / m).max(1e-9) as f64).ln());
             }
         }
-        for a in [self.globals.ambient, self.globals.indirect].into_iter().flatten() {
+        if let Some(a) = self.globals.ambient {
             x.extend(a.map(|v| (v.max(1e-12) as f64).ln()));
+        }
+        if let Some(k) = self.globals.indirect {
+            x.extend(k.map(|v| logit(v as f64)));
+        }
+        if let Some(s) = self.globals.sun {
+            let (theta, phi) = sun_angles(s.to_sun);
+            let m = s.rgb.iter().copied().fold(0.0f32, f32::max).max(1e-12);
+            x.extend([theta, phi, (m as f64).ln()]);
+            x.extend(s.rgb.map(|v| ((v / m).max(1e-9) as f64).ln()));
         }
         x
     }
@@ -248,16 +283,20 @@ impl<'a> Fitter<'a> {
             })
             .collect();
         let mut o = k * PER_LIGHT;
-        let mut next = |used: bool| {
+        let mut next = |used: bool, f: fn(f64) -> f64| {
             used.then(|| {
-                let v = [0, 1, 2].map(|c| x[o + c].clamp(-80.0, 80.0).exp() as f32);
+                let v = [0, 1, 2].map(|c| f(x[o + c]) as f32);
                 o += 3;
                 v
             })
         };
-        let ambient = next(self.globals.ambient.is_some());
-        let indirect = next(self.globals.indirect.is_some());
-        (lights, Globals { ambient, indirect })
+        let ambient = next(self.globals.ambient.is_some(), |v| v.clamp(-80.0, 80.0).exp());
+        let indirect = next(self.globals.indirect.is_some(), logistic);
+        let sun = self.globals.sun.map(|_| {
+            let p = &x[o..o + 6];
+            Sun { to_sun: sun_direction(p[0], p[1]).0, rgb: [0, 1, 2].map(|c| (p[2] + p[3 + c]).clamp(-80.0, 80.0).exp() as f32) }
+        });
+        (lights, Globals { ambient, indirect, sun })
     }
 
     /// Penalty value and its gradient with respect to each light position (per meter).
@@ -298,7 +337,15 @@ impl<'a> Fitter<'a> {
             m.push(set.intensity && free);
             m.extend([set.color && free; 3]);
         }
-        m.extend(std::iter::repeat_n(with_ambient, 3 * self.globals.count()));
+        let globals = self.globals.ambient.is_some() as usize + self.globals.indirect.is_some() as usize;
+        m.extend(std::iter::repeat_n(with_ambient, 3 * globals));
+        if self.globals.sun.is_some() {
+            // The sun's direction is left to the search (`init::sun_search`): its shadows'
+            // edges, which carry the information, are invisible to the gradient.
+            m.extend([false; 2]);
+            m.push(set.intensity);
+            m.extend([set.color; 3]);
+        }
         m
     }
 
@@ -337,13 +384,31 @@ impl<'a> Fitter<'a> {
                     g[o + 3] = gs;
                 }
                 let mut o = lights.len() * PER_LIGHT;
-                for (value, grad) in [(globals.ambient, ev.grad_ambient), (globals.indirect, ev.grad_indirect)] {
-                    if let Some(a) = value {
-                        for c in 0..3 {
-                            g[o + c] = grad[c] * a[c] as f64;
-                        }
-                        o += 3;
+                if let Some(a) = globals.ambient {
+                    for c in 0..3 {
+                        g[o + c] = ev.grad_ambient[c] * a[c] as f64;
                     }
+                    o += 3;
+                }
+                if let Some(k) = globals.indirect {
+                    for c in 0..3 {
+                        let k = k[c] as f64;
+                        g[o + c] = ev.grad_indirect[c] * k * (1.0 - k / INDIRECT_MAX);
+                    }
+                    o += 3;
+                }
+                if let Some(s) = globals.sun {
+                    let (_, d_theta, d_phi) = sun_direction(x[o], x[o + 1]);
+                    let gw = glam::DVec3::new(ev.grad_sun[0], ev.grad_sun[1], ev.grad_sun[2]);
+                    g[o] = gw.dot(d_theta);
+                    g[o + 1] = gw.dot(d_phi);
+                    let mut gs = 0.0;
+                    for c in 0..3 {
+                        let d = ev.grad_sun[3 + c] * s.rgb[c] as f64;
+                        gs += d;
+                        g[o + 3 + c] = d;
+                    }
+                    g[o + 2] = gs;
                 }
                 (ev.f + pen, g)
             };
@@ -398,7 +463,10 @@ impl<'a> Fitter<'a> {
         // Columns: the lights, then the ambient and indirect terms in use.
         let amb = self.globals.ambient.map(|_| k);
         let ind = self.globals.indirect.map(|_| k + amb.is_some() as usize);
-        let cols = k + self.globals.count();
+        let sun_col = self.globals.sun.map(|_| k + amb.is_some() as usize + ind.is_some() as usize);
+        let cols = k + amb.is_some() as usize + ind.is_some() as usize + sun_col.is_some() as usize;
+        // The sun's direction is fixed here; its colour is fitted per channel.
+        let sun_dir = self.globals.sun.map(|s| Terms { sun: Some(Sun { to_sun: s.to_sun, rgb: [1.0; 3] }), ..Terms::default() });
         let pb = self.pb;
         let lights = self.lights.clone();
         let vis = &self.vis;
@@ -433,6 +501,12 @@ impl<'a> Fitter<'a> {
                         basis.extend(nz.iter().map(|&(j, g)| (j, a * g)));
                         basis.extend(amb.map(|col| (col, a)));
                         basis.extend(ind.map(|col| (col, pb.indirect[i][c] as f64)));
+                        if let (Some(col), Some(t)) = (sun_col, sun_dir) {
+                            let (_, cos) = t.sun_at(pb, vis, i);
+                            if cos > 0.0 {
+                                basis.push((col, a * cos as f64 / std::f64::consts::PI));
+                            }
+                        }
                         for &(j, bj) in &basis {
                             rhs[c][j] += w * bj * pb.target[i][c] as f64;
                             for &(l, bl) in &basis {
@@ -460,8 +534,10 @@ impl<'a> Fitter<'a> {
         for c in 0..3 {
             let mut x: Vec<f64> = self.lights.iter().map(|l| l.rgb[c] as f64).collect();
             x.extend([self.globals.ambient, self.globals.indirect].into_iter().flatten().map(|a| a[c] as f64));
+            x.extend(self.globals.sun.map(|s| s.rgb[c] as f64));
             let free: Vec<bool> = (0..cols).map(|j| j >= k || !self.locked[j]).collect();
-            nnls_cd(&gram[c], &rhs[c], cols, &mut x, &free, 300);
+            let upper: Vec<f64> = (0..cols).map(|j| if Some(j) == ind { INDIRECT_MAX } else { f64::INFINITY }).collect();
+            nnls_cd(&gram[c], &rhs[c], cols, &mut x, &free, &upper, 20_000);
             for j in 0..k {
                 // Keep a light's channel just above zero so its log parameterisation stays finite.
                 self.lights[j].rgb[c] = (x[j] as f32).max(1e-6 * x.iter().copied().fold(1e-9, f64::max) as f32);
@@ -470,7 +546,10 @@ impl<'a> Fitter<'a> {
                 a[c] = (x[col] as f32).max(1e-9);
             }
             if let (Some(s), Some(col)) = (self.globals.indirect.as_mut(), ind) {
-                s[c] = (x[col] as f32).max(1e-9);
+                s[c] = (x[col] as f32).clamp(1e-6, INDIRECT_MAX as f32 - 1e-6);
+            }
+            if let (Some(s), Some(col)) = (self.globals.sun.as_mut(), sun_col) {
+                s.rgb[c] = (x[col] as f32).max(1e-6 * x.iter().copied().fold(1e-9, f64::max) as f32);
             }
         }
         self.eval().rel_error
@@ -555,8 +634,20 @@ impl<'a> Fitter<'a> {
     }
 }
 
-/// Projected coordinate descent for `min 1/2 x'Gx - r'x, x >= 0` (free entries only).
-pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], sweeps: usize) {
+/// Projected coordinate descent for `min 1/2 x'Gx - r'x, 0 <= x <= upper` (free entries only).
+/// Largest indirect scale `k` (see the module docs).
+pub const INDIRECT_MAX: f64 = 1.0;
+
+fn logistic(v: f64) -> f64 {
+    INDIRECT_MAX / (1.0 + (-v.clamp(-80.0, 80.0)).exp())
+}
+
+fn logit(k: f64) -> f64 {
+    let p = (k / INDIRECT_MAX).clamp(1e-6, 1.0 - 1e-6);
+    (p / (1.0 - p)).ln()
+}
+
+pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
     for _ in 0..sweeps {
         let mut change = 0.0f64;
         let mut scale = 0.0f64;
@@ -570,7 +661,7 @@ pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], swe
                     s -= g[j * n + l] * x[l];
                 }
             }
-            let new = (s / g[j * n + j]).max(0.0);
+            let new = (s / g[j * n + j]).max(0.0).min(upper[j]);
             change = change.max((new - x[j]).abs());
             scale = scale.max(new.abs());
             x[j] = new;

@@ -12,7 +12,7 @@ use glam::{DMat3, DMat4, DVec3, Vec2, Vec3};
 use serde_json::Value;
 
 use crate::error::{Error, Result};
-use crate::scene::{InputLight, Lighting, Material, Mesh, Scene, Texture, Wrap};
+use crate::scene::{InputLight, InputSun, Lighting, Material, Mesh, Scene, Texture, Wrap};
 
 /// Default `2^overbright` exponent of q3map2 lightmaps (CONVENTIONS.md).
 pub const DEFAULT_OVERBRIGHT_BITS: u32 = 2;
@@ -301,7 +301,10 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         let albedo = pbr.base_color_texture().filter(|i| i.tex_coord() == 0).map(|i| tex_ref(i.texture()));
         let lightmap = m.occlusion_texture().filter(|o| o.tex_coord() == 1).map(|o| tex_ref(o.texture()));
         let declared = ex.get("q3_lighting").and_then(Value::as_str);
+        // Sky surfaces (convert puts them under the "sky" node; see below) carry no target.
+        let sky = ex.get("q3_sky").and_then(Value::as_bool).unwrap_or(false);
         let lighting = match declared {
+            _ if sky => Lighting::None,
             Some("lightmap") if lightmap.is_some() => Lighting::Lightmap,
             Some("vertex") => Lighting::Vertex,
             Some("none") => Lighting::None,
@@ -318,6 +321,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             lightmap,
             overbright_bits: ex.get("q3_overbright_bits").and_then(Value::as_u64).map(|v| v.min(8) as u32).or(scene_ob).unwrap_or(DEFAULT_OVERBRIGHT_BITS),
             lightmap_gamma: ex.get("q3_lightmap_gamma").and_then(Value::as_f64).filter(|g| g.is_finite() && *g > 0.0).unwrap_or(1.0) as f32,
+            sky,
         });
     }
     let default_material = materials.len();
@@ -329,10 +333,12 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         lightmap: None,
         overbright_bits: scene_ob.unwrap_or(DEFAULT_OVERBRIGHT_BITS),
         lightmap_gamma: 1.0,
+        sky: false,
     });
 
     let mut mesh = Mesh::default();
     let mut lights = Vec::new();
+    let mut suns = Vec::new();
     let mut skipped = Vec::new();
     let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
         Some(s) => s.nodes().collect(),
@@ -357,6 +363,13 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             stack.push((c, world, depth + 1));
         }
         if let Some(light) = node.light() {
+            if let gltf::khr_lights_punctual::Kind::Directional = light.kind() {
+                // The light shines along the node's -Z: the sun lies along +Z.
+                let to_sun = world.transform_vector3(DVec3::Z).normalize_or_zero().as_vec3();
+                if to_sun != Vec3::ZERO && to_sun.is_finite() {
+                    suns.push(InputSun { node: node.index(), name: node.name().or(light.name()).unwrap_or("").to_string(), to_sun, color: light.color(), intensity_lux: light.intensity(), parent_world: parent });
+                }
+            }
             if let gltf::khr_lights_punctual::Kind::Point = light.kind() {
                 let ex = extras_of(node.extras());
                 let lex = extras_of(light.extras());
@@ -374,6 +387,8 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             }
         }
         let Some(m) = node.mesh() else { continue };
+        // convert's "sky" node (Blender keeps the name, adding ".001" on a clash).
+        let sky_node = node.name().is_some_and(|n| n == "sky" || n.strip_prefix("sky.").is_some_and(|s| s.chars().all(|c| c.is_ascii_digit())));
         let normal_matrix = DMat3::from_mat4(world).inverse().transpose();
         let flip = DMat3::from_mat4(world).determinant() < 0.0;
         for prim in m.primitives() {
@@ -415,6 +430,10 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
                 return Err(Error::input(path, format!("{}: index {bad} out of range (vertex count {n})", what())));
             }
             let mut mat = prim.material().index().unwrap_or(default_material);
+            if sky_node && mat != default_material {
+                materials[mat].sky = true;
+                materials[mat].lighting = Lighting::None;
+            }
             if materials[mat].lighting == Lighting::Lightmap && uv1.is_none() {
                 skipped.push(format!("{}: lightmapped material without TEXCOORD_1: no target", what()));
                 mat = default_material;
@@ -457,7 +476,8 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     repair_normals(&mut mesh);
     mesh.reweld();
     lights.sort_by_key(|l| l.node);
-    Ok(Scene { mesh, materials, textures, lights, origin, skipped })
+    suns.sort_by_key(|s| s.node);
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped })
 }
 
 /// Vertices without a usable normal get the area-weighted normal of their triangles.

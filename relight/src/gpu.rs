@@ -264,6 +264,8 @@ struct ForwardParams {
     stride: u32,
     ambient: [f32; 4],
     indirect: [f32; 4],
+    sun_dir: [f32; 4],
+    sun_rgb: [f32; 4],
     eps: f32,
     pad: [f32; 3],
 }
@@ -425,10 +427,21 @@ impl GpuBackend {
         }
         let lbuf = storage(d, "lights", bytemuck::cast_slice(&lb));
         let groups = self.n.div_ceil(WG).max(1);
-        let stride = 8 * (k as u32 + 1);
+        let stride = 8 * (k as u32 + 2);
         let size = groups as u64 * stride as u64 * 4;
         let partial = d.create_buffer(&wgpu::BufferDescriptor { label: Some("partial"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
-        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [terms.ambient[0], terms.ambient[1], terms.ambient[2], 0.0], indirect: [terms.indirect[0], terms.indirect[1], terms.indirect[2], 0.0], eps: self.eps, pad: [0.0; 3] };
+        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [terms.ambient[0], terms.ambient[1], terms.ambient[2], 0.0], indirect: [terms.indirect[0], terms.indirect[1], terms.indirect[2], 0.0],
+            sun_dir: terms.sun.map_or([0.0; 4], |s| s.to_sun.extend(1.0).to_array()),
+            sun_rgb: terms.sun.map_or([0.0; 4], |s| [s.rgb[0], s.rgb[1], s.rgb[2], 0.0]),
+            eps: self.eps,
+            pad: [0.0; 3],
+        };
+        // The sun's bits (a single word when there is none, never read then).
+        let sun_words: Vec<u32> = match (&vis.sun, terms.sun) {
+            (Some((_, b)), Some(_)) => b.clone(),
+            _ => vec![0],
+        };
+        let sbuf = storage(d, "sun_vis", bytemuck::cast_slice(&sun_words));
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("forward params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
         let layout = self.ctx.pipes.forward.get_bind_group_layout(0);
         let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -440,6 +453,7 @@ impl GpuBackend {
                 wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: vbuf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 4, resource: partial.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: sbuf.as_entire_binding() },
             ],
         });
         let mut enc = d.create_command_encoder(&Default::default());
@@ -460,7 +474,10 @@ impl GpuBackend {
                     ev.grad[j][q] += b[8 * j + q] as f64;
                 }
             }
-            let t = &b[8 * k..];
+            for q in 0..6 {
+                ev.grad_sun[q] += b[8 * k + q] as f64;
+            }
+            let t = &b[8 * (k + 1)..];
             ev.f += t[0] as f64;
             num += t[1] as f64;
             for c in 0..3 {
@@ -538,7 +555,10 @@ mod tests {
         assert!(blocked > 0, "the pillar casts a shadow");
         let mut vis = Visibility::default();
         vis.update(&lights, 0.0, pb.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &pb, q)).collect())).unwrap();
-        let terms = Terms { ambient: [0.01, 0.02, 0.03], indirect: [0.7, 1.0, 1.3] };
+        let terms = Terms { ambient: [0.01, 0.02, 0.03], indirect: [0.7, 1.0, 1.3], sun: Some(crate::model::Sun { to_sun: Vec3::new(-0.4, 0.8, 0.3).normalize(), rgb: [2.0, 1.0, 0.5] }) };
+        // Every triangle counts as sky here: the sun reaches every row that faces it.
+        let sky = vec![true; mesh.triangles.len()];
+        vis.update_sun(terms.sun.map(|s| s.to_sun), 0.0, pb.len(), &mut |dir| crate::visibility::trace_sun(&bvh, &pb, dir, &sky));
         let c = crate::model::evaluate(&pb, &vis, &lights, terms);
         let g = gpu.evaluate(&vis, &lights, terms).unwrap();
         let rel = |a: f64, b: f64, scale: f64| (a - b).abs() / scale.max(1e-30);
@@ -553,6 +573,11 @@ mod tests {
         for k in 0..3 {
             assert!(rel(c.grad_ambient[k], g.grad_ambient[k], c.grad_ambient[k].abs()) < 1e-4);
             assert!(rel(c.grad_indirect[k], g.grad_indirect[k], c.grad_indirect[k].abs()) < 1e-4, "indirect {k}: cpu {} wgpu {}", c.grad_indirect[k], g.grad_indirect[k]);
+        }
+        let scale = c.grad_sun.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        assert!(scale > 0.0);
+        for q in 0..6 {
+            assert!(rel(c.grad_sun[q], g.grad_sun[q], scale) < 1e-4, "sun gradient {q}: cpu {} wgpu {}", c.grad_sun[q], g.grad_sun[q]);
         }
     }
 }

@@ -178,10 +178,10 @@ mod tests {
         quad(&mut m, Vec3::X, Vec3::Z, Vec3::Y, 0);
         m.tri_source = (0..m.triangles.len() as u32).collect();
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0 };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
         let dark = Material { name: "floor".into(), lighting: Lighting::None, ..lit.clone() };
         let tex = Texture { width: 1, height: 1, rgba8: vec![255; 4], wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
-        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
+        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
         let bvh = Bvh::build(&scene.mesh);
         let mut pb = Problem::empty(2.0);
         pb.push(u32::MAX, Vec3::new(0.5, 0.0, 0.5), Vec3::Y, [0.5, 0.8, 1.0], [0.0; 3], [1.0; 3], [0.0; 3], 1.0);
@@ -221,8 +221,8 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0 };
-        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
+        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
         let bvh = Bvh::build(&scene.mesh);
         let mut pb = Problem::empty(10.0);
         for k in 0..200 {

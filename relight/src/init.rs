@@ -16,7 +16,7 @@ use glam::Vec3;
 use crate::backend::Cpu;
 use crate::bvh::Bvh;
 use crate::fit::{Algorithm, Fitter, ParamSet, Phase};
-use crate::model::{geometry_term, radiance, Light, Problem};
+use crate::model::{geometry_term, radiance, Light, Problem, Sun};
 use crate::scene::Mesh;
 use crate::visibility;
 
@@ -78,7 +78,7 @@ pub struct AutoStats {
 
 /// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
 #[allow(clippy::too_many_arguments)]
-pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
+pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
     let sub = pb.subsample(sample, seed);
     let diag = (hi - lo).length().max(1e-3);
     let mut backend = Cpu { pb: &sub, bvh };
@@ -87,6 +87,7 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(
     // The global terms the model starts with (the indirect term): lights are placed for
     // what they leave unexplained.
     fit.globals = globals;
+    fit.sky = sky.to_vec();
     for (l, locked) in start {
         fit.add_light(*l, *locked);
     }
@@ -179,4 +180,65 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, lo: Vec3, hi: Vec3, start: &[(
         err = e;
     }
     (fit.lights.clone(), stats)
+}
+
+/// The sun direction (and irradiance) that best explains what the model `base` leaves of
+/// the target on `sub`. Without `from`: a coarse search over the upper hemisphere (every
+/// 10 degrees of elevation, 15 of azimuth, plus `extra` directions such as the input's
+/// sun), then a local pattern search halving its step from 5 degrees down to 0.05; with
+/// `from`, only the local search, from there and from 1 degree. Each direction is scored
+/// by the error its best non-negative irradiance removes (per channel, exact). The
+/// gradient cannot do this part: it sees the cosine, not the shadows' edges. `None` when
+/// no direction lowers the error.
+pub fn sun_search(sub: &Problem, bvh: &Bvh, sky: &[bool], base: &[[f32; 3]], extra: &[Vec3], from: Option<Vec3>) -> Option<(Sun, f64)> {
+    use crate::fit::{sun_angles, sun_direction};
+    use rayon::prelude::*;
+    let score = |w: Vec3| -> (f64, [f32; 3]) {
+        let bits = crate::visibility::trace_sun(bvh, sub, w, sky);
+        let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
+        for i in 0..sub.len() {
+            if bits[i >> 5] >> (i & 31) & 1 == 0 {
+                continue;
+            }
+            let cos = sub.normal[i].dot(w).max(0.0) as f64;
+            for c in 0..3 {
+                let wt = sub.area[i] as f64 * sub.weight[i][c] as f64;
+                let b = sub.albedo[i][c] as f64 * cos / std::f64::consts::PI;
+                h[c] += wt * b * (sub.target[i][c] - base[i][c]) as f64;
+                g2[c] += wt * b * b;
+            }
+        }
+        let s: f64 = (0..3).map(|c| if g2[c] > 0.0 && h[c] > 0.0 { h[c] * h[c] / g2[c] } else { 0.0 }).sum();
+        (s, [0, 1, 2].map(|c| if g2[c] > 0.0 { (h[c] / g2[c]).max(0.0) as f32 } else { 0.0 }))
+    };
+    let mut cands: Vec<(f64, f64)> = Vec::new();
+    if from.is_none() {
+        for e in 0..9 {
+            for a in 0..24 {
+                cands.push(((5.0 + 10.0 * e as f64).to_radians(), (15.0 * a as f64).to_radians()));
+            }
+        }
+        cands.push((90f64.to_radians(), 0.0));
+    }
+    cands.extend(extra.iter().chain(from.as_ref()).map(|&w| sun_angles(w)));
+    let scored: Vec<(f64, (f64, f64))> = cands.par_iter().map(|&(t, p)| (score(sun_direction(t, p).0).0, (t, p))).collect();
+    let (mut best_s, (mut t, mut p)) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0))?;
+    let mut step = if from.is_some() { 1f64 } else { 5.0 }.to_radians();
+    while step > 0.05f64.to_radians() {
+        let around: Vec<(f64, f64)> = [(-1.0, 0.0), (1.0, 0.0), (0.0, -1.0), (0.0, 1.0), (-1.0, -1.0), (1.0, 1.0), (-1.0, 1.0), (1.0, -1.0)]
+            .iter()
+            .map(|(a, b)| ((t + a * step).clamp(0.0, std::f64::consts::FRAC_PI_2), p + b * step))
+            .collect();
+        let local: Vec<(f64, (f64, f64))> = around.par_iter().map(|&(a, b)| (score(sun_direction(a, b).0).0, (a, b))).collect();
+        match local.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)) {
+            Some((s, at)) if s > best_s => (best_s, (t, p)) = (s, at),
+            _ => step *= 0.5,
+        }
+    }
+    if !(best_s > 0.0) {
+        return None;
+    }
+    let w = sun_direction(t, p).0;
+    let rgb = score(w).1;
+    Some((Sun { to_sun: w, rgb: rgb.map(|v| v.max(1e-6)) }, best_s))
 }

@@ -37,6 +37,17 @@ pub struct OutLight {
     pub locked: bool,
 }
 
+/// A fitted sun to write as a KHR_lights_punctual directional light.
+#[derive(Debug, Clone)]
+pub struct OutSun {
+    /// Unit direction towards the sun, world axes.
+    pub to_sun: DVec3,
+    /// Irradiance at normal incidence per channel, W/m^2 (written as lux = 683 W/m^2).
+    pub rgb: [f64; 3],
+    pub name: String,
+    pub extras: Value,
+}
+
 /// Luminous efficacy used by KHR_lights_punctual and Blender: candela = 683 * W/sr.
 pub const LM_PER_W: f64 = 683.0;
 
@@ -214,7 +225,9 @@ fn light_json(l: &OutLight) -> Value {
 }
 
 /// Writes `input` plus `lights` to `output`.
-pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Value) -> Result<()> {
+/// Writes the relit scene. With `replace_suns`, the input's directional lights are replaced
+/// by `sun` (the fit decided about the sun); otherwise they are kept as they are.
+pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutSun>, replace_suns: bool, scene_extras: Value) -> Result<()> {
     if q3gltf_convert::output::same_file(output, input) {
         return Err(Error::Usage(format!("{}: the output would overwrite the input", output.display())));
     }
@@ -232,7 +245,8 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Val
     let mut remap = vec![None; old_lights.len()];
     let mut new_lights = Vec::new();
     for (i, l) in old_lights.iter().enumerate() {
-        if l.get("type").and_then(Value::as_str) != Some("point") {
+        let kind = l.get("type").and_then(Value::as_str);
+        if kind != Some("point") && !(replace_suns && kind == Some("directional")) {
             remap[i] = Some(new_lights.len());
             new_lights.push(l.clone());
         }
@@ -286,6 +300,24 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], scene_extras: Val
                 }));
             }
         }
+    }
+    if let Some(sun) = sun {
+        let index = new_lights.len();
+        let m = sun.rgb.iter().copied().fold(0.0f64, f64::max);
+        let mut light = json!({
+            "type": "directional",
+            "name": sun.name,
+            "color": if m > 0.0 { sun.rgb.map(|c| c / m) } else { [1.0; 3] },
+            "intensity": m * LM_PER_W,
+        });
+        if !sun.extras.is_null() {
+            light["extras"] = sun.extras.clone();
+        }
+        new_lights.push(light);
+        // The light shines along the node's -Z: rotate +Z onto the direction to the sun.
+        let q = glam::DQuat::from_rotation_arc(DVec3::Z, sun.to_sun.normalize_or(DVec3::Y));
+        new_roots.push(nodes.len());
+        nodes.push(json!({ "name": sun.name, "rotation": [q.x, q.y, q.z, q.w], "extensions": { "KHR_lights_punctual": { "light": index } } }));
     }
     let scene_index = root.get("scene").and_then(Value::as_u64).unwrap_or(0) as usize;
     let scenes = root.entry("scenes").or_insert_with(|| json!([{ "nodes": [] }]));

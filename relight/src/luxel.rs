@@ -221,8 +221,8 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0 };
-        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() }
+        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
+        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() }
     }
 
     #[test]

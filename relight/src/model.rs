@@ -2,12 +2,14 @@
 //! version is `shaders/forward.wgsl`).
 //!
 //! View-independent Lambertian radiance at row `i` (a vertex or a luxel), channel `c`, from
-//! point lights `j` of radiant intensity `I_jc` [W/sr] at `p_j` [m], plus two optional
-//! global terms, an ambient irradiance `a_c` and a scale `k_c` of the indirect radiance
-//! `o_ic` gathered once from the data ([`crate::indirect`]):
+//! point lights `j` of radiant intensity `I_jc` [W/sr] at `p_j` [m], plus optional global
+//! terms: a sun (irradiance `S_c` [W/m^2] at normal incidence from direction `w`, unit,
+//! towards the sun; `V_i` its visibility), an ambient irradiance `a_c` and a scale `k_c`
+//! of the indirect radiance `o_ic` gathered once from the data ([`crate::indirect`]):
 //!
 //! ```text
-//! x_ic = albedo_ic / pi * sum_j I_jc V_ij g_ij  +  albedo_ic * a_c  +  k_c * o_ic
+//! x_ic = albedo_ic / pi * (sum_j I_jc V_ij g_ij + S_c V_i max(0, n_i . w))
+//!        + albedo_ic * a_c  +  k_c * o_ic
 //! g_ij = max(0, n_i . d) / (|d| max(|d|^2, eps^2)),    d = p_j - x_i
 //! ```
 //!
@@ -24,7 +26,9 @@
 //! `dF/dp_j = sum_i (sum_c rho_ic albedo_ic I_jc / pi) V_ij grad_p g_ij`, where for
 //! `s = n.d > 0`, `r = |d|`: `grad g = n/r^3 - 3 s d / r^5` (or `n/(r eps^2) - s d/(r^3 eps^2)`
 //! inside `eps`). Visibility is piecewise constant, so its derivative is zero almost everywhere.
-//! The global terms: `dF/da_c = sum_i rho_ic albedo_ic`, `dF/dk_c = sum_i rho_ic o_ic`.
+//! The global terms: `dF/da_c = sum_i rho_ic albedo_ic`, `dF/dk_c = sum_i rho_ic o_ic`,
+//! `dF/dS_c = sum_i rho_ic albedo_ic / pi V_i max(0, n_i . w)` and
+//! `dF/dw = sum_i (sum_c rho_ic albedo_ic S_c / pi) V_i n_i` (where `n_i . w > 0`).
 
 use std::f64::consts::PI;
 
@@ -132,6 +136,14 @@ pub struct Light {
     pub rgb: [f32; 3],
 }
 
+/// A directional light: unit direction towards it and irradiance at normal incidence per
+/// channel [W/m^2].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sun {
+    pub to_sun: Vec3,
+    pub rgb: [f32; 3],
+}
+
 /// The model's global terms (see the module docs), held fixed by the kernels and fitted
 /// like the lights' intensities.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -140,6 +152,22 @@ pub struct Terms {
     pub ambient: [f32; 3],
     /// Scale of the gathered indirect radiance per channel, `k_c`.
     pub indirect: [f32; 3],
+    /// The sun, whose visibility is [`Visibility::sun`].
+    pub sun: Option<Sun>,
+}
+
+impl Terms {
+    /// The sun's irradiance (before `1/pi`) at row `i` per channel, and `max(0, n.w)`.
+    #[inline]
+    pub fn sun_at(&self, pb: &Problem, vis: &Visibility, i: usize) -> ([f32; 3], f32) {
+        match self.sun {
+            Some(s) if vis.sun_visible(i) => {
+                let c = pb.normal[i].dot(s.to_sun).max(0.0);
+                (s.rgb.map(|v| v * c), c)
+            }
+            _ => ([0.0; 3], 0.0),
+        }
+    }
 }
 
 /// Value and gradient of the objective.
@@ -155,6 +183,8 @@ pub struct Eval {
     pub grad_ambient: [f64; 3],
     /// dF/dk_c of the indirect term.
     pub grad_indirect: [f64; 3],
+    /// dF/dw (3, per unit of direction) then dF/dS (3, per W/m^2) of the sun.
+    pub grad_sun: [f64; 6],
 }
 
 /// `g` of the module docs and its gradient with respect to the light position.
@@ -193,7 +223,8 @@ pub fn radiance(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) 
     (0..pb.len())
         .into_par_iter()
         .map(|i| {
-            let mut e = [0.0f64; 3];
+            let (s, _) = terms.sun_at(pb, vis, i);
+            let mut e = s.map(|v| v as f64);
             for (j, l) in lights.iter().enumerate() {
                 if !vis.visible(j, i) {
                     continue;
@@ -213,7 +244,7 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) 
     let k = lights.len();
     let chunk = 4096;
     #[allow(clippy::type_complexity)]
-    let parts: Vec<(f64, f64, Vec<[f64; 6]>, [f64; 3], [f64; 3])> = (0..pb.len().div_ceil(chunk))
+    let parts: Vec<(f64, f64, Vec<[f64; 6]>, [f64; 3], [f64; 3], [f64; 6])> = (0..pb.len().div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
             let mut f = 0.0;
@@ -221,10 +252,12 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) 
             let mut grad = vec![[0.0f64; 6]; k];
             let mut ga = [0.0f64; 3];
             let mut gk = [0.0f64; 3];
+            let mut gsun = [0.0f64; 6];
             let mut gs = vec![(0.0f32, Vec3::ZERO); k];
             for i in ci * chunk..((ci + 1) * chunk).min(pb.len()) {
                 let (x, n) = (pb.pos[i], pb.normal[i]);
-                let mut e = [0.0f64; 3];
+                let (s, cos_sun) = terms.sun_at(pb, vis, i);
+                let mut e = s.map(|v| v as f64);
                 for (j, l) in lights.iter().enumerate() {
                     gs[j] = if vis.visible(j, i) { geometry_term(x, n, l.pos, pb.eps) } else { (0.0, Vec3::ZERO) };
                     for c in 0..3 {
@@ -246,6 +279,16 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) 
                 if rho_a == [0.0; 3] {
                     continue;
                 }
+                if let Some(sun) = terms.sun.filter(|_| cos_sun > 0.0) {
+                    let mut q = 0.0;
+                    for c in 0..3 {
+                        gsun[3 + c] += rho_a[c] * cos_sun as f64;
+                        q += rho_a[c] * sun.rgb[c] as f64;
+                    }
+                    gsun[0] += q * n.x as f64;
+                    gsun[1] += q * n.y as f64;
+                    gsun[2] += q * n.z as f64;
+                }
                 for (j, l) in lights.iter().enumerate() {
                     let (g, dg) = gs[j];
                     if g == 0.0 {
@@ -263,12 +306,15 @@ pub fn evaluate(pb: &Problem, vis: &Visibility, lights: &[Light], terms: Terms) 
                     gr[2] += dg.z;
                 }
             }
-            (f, num, grad, ga, gk)
+            (f, num, grad, ga, gk, gsun)
         })
         .collect();
     let mut out = Eval { grad: vec![[0.0; 6]; k], ..Default::default() };
     let mut num = 0.0;
-    for (f, nm, g, ga, gk) in parts {
+    for (f, nm, g, ga, gk, gsun) in parts {
+        for q in 0..6 {
+            out.grad_sun[q] += gsun[q];
+        }
         out.f += f;
         num += nm;
         for (a, b) in out.grad.iter_mut().zip(g) {
@@ -305,13 +351,19 @@ mod tests {
             Light { pos: Vec3::new(1.1, 1.7, 0.9), rgb: [2.0, 1.5, 1.0] },
             Light { pos: Vec3::new(2.6, 0.8, 2.2), rgb: [0.7, 1.2, 1.9] },
         ];
-        let terms = Terms { ambient: [0.01, 0.02, 0.015], indirect: [0.8, 1.1, 0.6] };
+        let sun = Sun { to_sun: Vec3::new(0.3, 0.9, -0.2).normalize(), rgb: [1.5, 1.2, 0.9] };
+        let terms = Terms { ambient: [0.01, 0.02, 0.015], indirect: [0.8, 1.1, 0.6], sun: Some(sun) };
         let vis_of = |ls: &[Light]| {
             let mut v = Visibility::default();
             v.update(ls, 0.0, pb.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &pb, q)).collect())).unwrap();
             v
         };
-        let vis = vis_of(&lights);
+        let mut vis = vis_of(&lights);
+        // The room is closed: let the sun reach the rows facing it through a "sky" ceiling,
+        // i.e. with every triangle marked sky.
+        let sky = vec![true; mesh.triangles.len()];
+        vis.update_sun(Some(sun.to_sun), 0.0, pb.len(), &mut |d| crate::visibility::trace_sun(&bvh, &pb, d, &sky));
+        assert!(vis.sun.as_ref().unwrap().1.iter().any(|&w| w != 0), "the sun reaches some rows");
         let ev = evaluate(&pb, &vis, &lights, terms);
         assert!(ev.f > 0.0);
         for j in 0..lights.len() {
@@ -345,6 +397,22 @@ mod tests {
             b.indirect[c] -= h;
             let fd = (evaluate(&pb, &vis, &lights, a).f - evaluate(&pb, &vis, &lights, b).f) / (2.0 * h as f64);
             assert!((fd - ev.grad_indirect[c]).abs() <= 2e-3 * fd.abs().max(ev.grad_indirect[c].abs()), "indirect {c}: {} vs {fd}", ev.grad_indirect[c]);
+        }
+        // The sun: direction (unnormalised perturbation, same visibility) and irradiance.
+        for q in 0..6 {
+            let h = 1e-3f32;
+            let (mut a, mut b) = (sun, sun);
+            if q < 3 {
+                a.to_sun[q] += h;
+                b.to_sun[q] -= h;
+            } else {
+                a.rgb[q - 3] += h;
+                b.rgb[q - 3] -= h;
+            }
+            let with = |s: Sun| Terms { sun: Some(s), ..terms };
+            let fd = (evaluate(&pb, &vis, &lights, with(a)).f - evaluate(&pb, &vis, &lights, with(b)).f) / (2.0 * h as f64);
+            let an = ev.grad_sun[q];
+            assert!((fd - an).abs() <= 2e-3 * fd.abs().max(an.abs()).max(1e-9 * ev.f), "sun param {q}: analytic {an} vs central difference {fd}");
         }
     }
 }

@@ -17,7 +17,7 @@ use crate::fit::{Fitter, IterRecord, PhaseSummary};
 use crate::gltf_in;
 use crate::init;
 use crate::lights_out::{self, OutLight, LM_PER_W};
-use crate::model::{Light, Problem};
+use crate::model::{Light, Problem, Sun};
 use crate::schemes;
 use crate::subdivide::{self, Bound};
 use crate::target::{self, TargetStats};
@@ -88,6 +88,9 @@ pub struct Options {
     pub indirect: Optional,
     /// Gather rays per row for the indirect term.
     pub indirect_rays: usize,
+    /// Whether the model has a sun (`auto`: searched when the scene has sky surfaces or a
+    /// directional light, kept where it lowers the error).
+    pub sun: Optional,
 }
 
 impl Default for Options {
@@ -107,6 +110,7 @@ impl Default for Options {
             seed: 1,
             indirect: Optional::Auto,
             indirect_rays: 16,
+            sun: Optional::Auto,
         }
     }
 }
@@ -121,6 +125,20 @@ pub trait Progress {
 }
 pub struct Silent;
 impl Progress for Silent {}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct SunReport {
+    pub name: String,
+    /// Unit vector towards the sun, world axes.
+    pub to_sun: [f64; 3],
+    /// Above the horizontal plane, degrees.
+    pub elevation_deg: f64,
+    /// From +X towards +Z (glTF axes), degrees.
+    pub azimuth_deg: f64,
+    /// Illuminance at normal incidence of the brightest channel, lux (683 lm/W).
+    pub illuminance_lux: f64,
+    pub color: [f64; 3],
+}
 
 #[derive(Debug, Clone, Serialize)]
 pub struct LightReport {
@@ -163,6 +181,8 @@ pub struct Report {
     pub indirect: Option<[f32; 3]>,
     pub indirect_note: String,
     pub indirect_gather: Option<crate::indirect::GatherStats>,
+    pub sun: Option<SunReport>,
+    pub sun_note: String,
     pub pruned: usize,
     pub merged: usize,
     pub auto: Option<init::AutoStats>,
@@ -323,8 +343,32 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         .collect();
     // The indirect term is part of the model from the start (lights are placed for what it
     // leaves unexplained); `auto` removes it after the optimisation if it does not help.
-    let globals0 = crate::fit::Globals { indirect: (opts.indirect != Optional::Off).then_some([1.0; 3]), ambient: None };
-    let mut auto_stats = None;
+    let mut globals0 = crate::fit::Globals { indirect: (opts.indirect != Optional::Off).then_some([0.5; 3]), ..Default::default() };
+    // The sun: the input's (with --init input), else searched, when the scene could have one.
+    let sky: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
+    let consider_sun = match opts.sun {
+        Optional::Off => false,
+        Optional::On => true,
+        Optional::Auto => sky.iter().any(|&s| s) || !scene.suns.is_empty(),
+    };
+    let mut sun_note = if consider_sun { String::new() } else { format!("off ({})", if opts.sun == Optional::Off { "--sun off" } else { "no sky surface, no directional light" }) };
+    if consider_sun {
+        let input_sun = scene.suns.first().map(|s| crate::model::Sun { to_sun: s.to_sun, rgb: s.color.map(|c| (c as f64 * s.intensity_lux as f64 / LM_PER_W) as f32) });
+        globals0.sun = match (&opts.init, input_sun) {
+            (Init::Input, Some(s)) => Some(s),
+            _ => {
+                let sub = pb.subsample(10_000, opts.seed);
+                let base: Vec<[f32; 3]> = sub.indirect.iter().map(|o| if globals0.indirect.is_some() { *o } else { [0.0; 3] }).collect();
+                let extra: Vec<Vec3> = scene.suns.iter().map(|s| s.to_sun).collect();
+                init::sun_search(&sub, &bvh, &sky, &base, &extra, None).map(|(s, _)| s)
+            }
+        };
+        if globals0.sun.is_none() {
+            sun_note = "no direction lowers the error".into();
+        }
+    }
+    st.done("sun");
+    let mut auto_stats: Option<init::AutoStats> = None;
     let (start, sources): (Vec<(Light, bool)>, Vec<Option<usize>>) = match &opts.init {
         Init::Input => {
             if input_lights.is_empty() {
@@ -341,7 +385,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, lo, hi, &keep, globals0, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
@@ -353,12 +397,21 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let mut fit = Fitter::new(&pb, &bvh, backend.as_mut(), lo, hi);
     fit.deadline = deadline;
     fit.globals = globals0;
+    fit.sky = sky.clone();
     let mut sources = sources;
     for (l, locked) in &start {
         fit.add_light(*l, *locked);
     }
     // Keep `sources` aligned with the lights through pruning and merging: tag by position.
-    let rel_error_initial = if matches!(opts.init, Init::Input) { fit.eval().rel_error } else { fit.fit_intensities() };
+    // With --init input the start is the file as it is: its lights and sun, nothing else.
+    let rel_error_initial = if matches!(opts.init, Init::Input) {
+        fit.globals = crate::fit::Globals { sun: globals0.sun.filter(|_| !scene.suns.is_empty()), ..Default::default() };
+        let e = fit.eval().rel_error;
+        fit.globals = globals0;
+        e
+    } else {
+        fit.fit_intensities()
+    };
     st.done("start");
 
     fit.on_iter = Some(Box::new(|r: &IterRecord| progress.iteration(r)));
@@ -378,7 +431,10 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The indirect term only where it lowers the error; then as few lights as the scene
     // needs; then the ambient term, again only where it lowers the error.
     progress.stage("prune");
-    let indirect_note = decide(&mut fit, |g, on| g.indirect = on.then_some([1.0; 3]), opts.indirect);
+    let indirect_note = decide(&mut fit, |g, on| g.indirect = on.then_some([0.5; 3]), opts.indirect);
+    if let Some(fitted) = fit.globals.sun {
+        sun_note = decide(&mut fit, |g, on| g.sun = on.then_some(fitted), opts.sun);
+    }
     let mut pruned = 0;
     let mut merged = 0;
     if !matches!(opts.init, Init::Grid(_)) || opts.scheme == "default" {
@@ -389,6 +445,24 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         sources = fit.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
     }
     let ambient_note = decide(&mut fit, |g, on| g.ambient = on.then_some([1e-6; 3]), Optional::Auto);
+    // The sun's direction by search, now that the final lights explain their part (shadow
+    // edges move with it; the gradient sees only the cosine); the polish below follows.
+    if let Some(s) = fit.globals.sun.filter(|_| !fit.out_of_time()) {
+        let sub = pb.subsample(40_000, opts.seed);
+        let mut vis = crate::visibility::Visibility::default();
+        let others = crate::fit::Globals { sun: None, ..fit.globals };
+        let _ = vis.update(&fit.lights, 0.0, sub.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &sub, q)).collect()));
+        let base = crate::model::radiance(&sub, &vis, &fit.lights, others.terms());
+        if let Some((better, _)) = init::sun_search(&sub, &bvh, &sky, &base, &[], Some(s.to_sun)) {
+            let before = fit.eval().f;
+            let saved = (fit.lights.clone(), fit.globals);
+            fit.globals.sun = Some(Sun { rgb: s.rgb, ..better });
+            fit.fit_intensities();
+            if !(fit.eval().f <= before) {
+                (fit.lights, fit.globals) = saved;
+            }
+        }
+    }
     if (pruned + merged > 0 || fit.globals != crate::fit::Globals::default()) && !fit.out_of_time() {
         let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(40).min(40) };
         fit.run_phase("polish", polish);
@@ -431,12 +505,19 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let rays = fit.vis.rays;
     let ambient = fit.globals.ambient;
     let indirect = fit.globals.indirect;
+    let fit_sun = fit.globals.sun;
     drop(fit);
     progress.stage("write");
     // With the indirect term, the lights reproduce the data only together with the bounced
     // light that a renderer with global illumination adds: say so for the user.
     let scene_extras = json!({ "rel_error": final_eval.rel_error, "lights": out_lights.len(), "ambient": ambient, "indirect_scale": indirect, "lights_are": if indirect.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" } });
-    lights_out::write(&opts.input, &opts.output, &out_lights, scene_extras)?;
+    let out_sun = fit_sun.map(|s| lights_out::OutSun {
+        to_sun: s.to_sun.as_dvec3(),
+        rgb: s.rgb.map(|c| c as f64),
+        name: scene.suns.first().map(|s| s.name.clone()).filter(|n| !n.is_empty()).unwrap_or_else(|| "sun".into()),
+        extras: json!({ "q3_relight": { "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
+    });
+    lights_out::write(&opts.input, &opts.output, &out_lights, out_sun.as_ref(), opts.sun != Optional::Off, scene_extras)?;
     st.done("write");
 
     let light_reports = out_lights
@@ -482,6 +563,19 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         indirect,
         indirect_note,
         indirect_gather,
+        sun: out_sun.as_ref().map(|s| {
+            let m = s.rgb.iter().copied().fold(0.0f64, f64::max);
+            let (t, p) = crate::fit::sun_angles(s.to_sun.as_vec3());
+            SunReport {
+                name: s.name.clone(),
+                to_sun: s.to_sun.to_array(),
+                elevation_deg: t.to_degrees(),
+                azimuth_deg: p.to_degrees(),
+                illuminance_lux: m * LM_PER_W,
+                color: if m > 0.0 { s.rgb.map(|c| c / m) } else { [1.0; 3] },
+            }
+        }),
+        sun_note,
         pruned,
         merged,
         auto: auto_stats,

@@ -59,6 +59,8 @@ pub struct Material {
     /// Lightmap and vertex-colour decoding: `e = (byte/255)^gamma * 2^overbright_bits`.
     pub overbright_bits: u32,
     pub lightmap_gamma: f32,
+    /// A sky surface: sunlight passes it (the sun is behind it), it carries no target.
+    pub sky: bool,
 }
 
 impl Material {
@@ -87,6 +89,20 @@ pub struct InputLight {
     pub intensity_cd: f32,
     /// `extras.locked == true`: the optimiser must not change this light.
     pub locked: bool,
+    /// World matrix of the node's parent (identity for a root node), in f64.
+    pub parent_world: glam::DMat4,
+}
+
+/// A directional light found in the input (KHR_lights_punctual `directional`).
+#[derive(Debug, Clone)]
+pub struct InputSun {
+    pub node: usize,
+    pub name: String,
+    /// Unit vector from the surface towards the sun, world axes.
+    pub to_sun: Vec3,
+    pub color: [f32; 3],
+    /// Illuminance at normal incidence, lux.
+    pub intensity_lux: f32,
     /// World matrix of the node's parent (identity for a root node), in f64.
     pub parent_world: glam::DMat4,
 }
@@ -150,6 +166,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub lights: Vec<InputLight>,
+    /// Directional lights of the input.
+    pub suns: Vec<InputSun>,
     /// World position of the mesh's local origin: world = origin + stored position.
     pub origin: glam::DVec3,
     /// Primitives skipped (not triangles, no positions), with why.
