@@ -174,6 +174,32 @@ fn check_accessor(a: &gltf::Accessor, buffers: &[Vec<u8>], max_elements: usize) 
     Ok(())
 }
 
+/// Checks the component type and dimensions of the attributes and indices that are read,
+/// as the glTF spec allows them: the `gltf` reader assumes them (and hits `unreachable!`
+/// or reads the wrong element size otherwise).
+fn check_attribute_types(prim: &gltf::Primitive) -> std::result::Result<(), String> {
+    use gltf::accessor::{DataType as D, Dimensions as N};
+    use gltf::mesh::Semantic as S;
+    let ok = |a: &gltf::Accessor, types: &[D], dims: &[N]| types.contains(&a.data_type()) && dims.contains(&a.dimensions());
+    for (sem, a) in prim.attributes() {
+        let (fine, want) = match sem {
+            S::Positions | S::Normals => (ok(&a, &[D::F32], &[N::Vec3]), "FLOAT VEC3"),
+            S::TexCoords(_) => (ok(&a, &[D::F32, D::U8, D::U16], &[N::Vec2]), "VEC2 of FLOAT, UNSIGNED_BYTE or UNSIGNED_SHORT"),
+            S::Colors(_) => (ok(&a, &[D::F32, D::U8, D::U16], &[N::Vec3, N::Vec4]), "VEC3 or VEC4 of FLOAT, UNSIGNED_BYTE or UNSIGNED_SHORT"),
+            _ => (true, ""),
+        };
+        if !fine {
+            return Err(format!("attribute {sem:?} (accessor {}) is {:?} {:?}, not {want}", a.index(), a.data_type(), a.dimensions()));
+        }
+    }
+    if let Some(a) = prim.indices() {
+        if !ok(&a, &[D::U8, D::U16, D::U32], &[N::Scalar]) {
+            return Err(format!("indices (accessor {}) are {:?} {:?}, not an unsigned SCALAR", a.index(), a.data_type(), a.dimensions()));
+        }
+    }
+    Ok(())
+}
+
 /// Decodes one image with bounded dimensions and allocation, to RGBA8.
 fn decode_image(bytes: &[u8], mime: Option<&str>, uri: Option<&str>, limits: &Limits) -> std::result::Result<(u32, u32, Vec<u8>), String> {
     let mut r = image::ImageReader::new(std::io::Cursor::new(bytes));
@@ -397,6 +423,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
                 skipped.push(format!("{}: mode {:?} is not triangles", what(), prim.mode()));
                 continue;
             }
+            check_attribute_types(&prim).map_err(|m| Error::input(path, format!("{}: {m}", what())))?;
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d[..]));
             let Some(pos) = reader.read_positions() else {
                 skipped.push(format!("{}: no POSITION", what()));
@@ -656,6 +683,27 @@ mod tests {
         });
         let e = err_of(read_mem(&bytes));
         assert!(e.contains("without a buffer view"), "{e}");
+    }
+
+    /// Found by the `gltf_in` fuzz target: COLOR_0 on a VEC2 accessor hit
+    /// `unreachable!()` inside the `gltf` reader (a panic); so would FLOAT indices.
+    #[test]
+    fn attribute_types_are_checked_before_reading() {
+        let color_vec2 = triangle(|d| {
+            d["accessors"].as_array_mut().unwrap().push(json!({ "bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC2" }));
+            d["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = json!(1);
+        });
+        let e = err_of(read_mem(&color_vec2));
+        assert!(e.contains("Colors(0)") && e.contains("not VEC3 or VEC4"), "{e}");
+        let float_indices = triangle(|d| {
+            d["accessors"].as_array_mut().unwrap().push(json!({ "bufferView": 0, "componentType": 5126, "count": 3, "type": "SCALAR" }));
+            d["meshes"][0]["primitives"][0]["indices"] = json!(1);
+        });
+        let e = err_of(read_mem(&float_indices));
+        assert!(e.contains("indices") && e.contains("unsigned SCALAR"), "{e}");
+        let u8_positions = triangle(|d| d["accessors"][0]["componentType"] = json!(5121));
+        let e = err_of(read_mem(&u8_positions));
+        assert!(e.contains("Positions") && e.contains("FLOAT VEC3"), "{e}");
     }
 
     #[test]
