@@ -256,6 +256,14 @@ pub fn read(path: &Path) -> Result<Scene> {
 /// `limits`.
 pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limits) -> Result<Scene> {
     let path = shown;
+    // gltf 1.4.1 subtracts the 12-byte header from the declared GLB length unchecked
+    // (an overflow panic with overflow checks on: found by the gltf_in fuzz target).
+    if let Some(h) = bytes.strip_prefix(b"glTF").and_then(|r| r.get(4..8)) {
+        let declared = u32::from_le_bytes(h.try_into().unwrap());
+        if declared < 12 {
+            return Err(Error::input(path, format!("GLB header declares {declared} bytes, less than the header itself")));
+        }
+    }
     let gltf::Gltf { document: doc, mut blob } = gltf::Gltf::from_slice(bytes).map_err(|e| Error::input(path, e.to_string()))?;
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for b in doc.buffers() {
@@ -704,6 +712,21 @@ mod tests {
         let u8_positions = triangle(|d| d["accessors"][0]["componentType"] = json!(5121));
         let e = err_of(read_mem(&u8_positions));
         assert!(e.contains("Positions") && e.contains("FLOAT VEC3"), "{e}");
+    }
+
+    /// Found by the `gltf_in` fuzz target: a GLB header declaring fewer than 12 bytes
+    /// made `gltf::Gltf::from_slice` subtract with overflow (a panic with overflow
+    /// checks, a wrapped length without).
+    #[test]
+    fn glb_length_shorter_than_its_header_is_an_error() {
+        for declared in [0u32, 11] {
+            let mut glb = b"glTF".to_vec();
+            glb.extend_from_slice(&2u32.to_le_bytes());
+            glb.extend_from_slice(&declared.to_le_bytes());
+            glb.extend_from_slice(&[0u8; 16]);
+            let e = err_of(read_mem(&glb));
+            assert!(e.contains("GLB header declares"), "{e}");
+        }
     }
 
     #[test]
