@@ -57,6 +57,9 @@ pub enum Optional {
     On,
 }
 
+/// Rows of the subsample on which `--init auto` places lights (every k-th row).
+pub const AUTO_SAMPLE_ROWS: usize = 20_000;
+
 /// A global term (indirect, ambient) stays in the model with `auto` only when it lowers
 /// the relative error by at least this much (absolute).
 pub const TERM_GAIN: f64 = 0.005;
@@ -385,7 +388,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, 40_000, opts.seed, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
