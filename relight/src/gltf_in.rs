@@ -283,6 +283,12 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     let mut images = Vec::new();
     for img in doc.images() {
         let what = format!("image {}", img.index());
+        // `Image::source` unwraps: a buffer view without a mimeType, or neither a view nor
+        // a URI, panics in gltf 1.4.1 (found by the gltf_in fuzz target).
+        let raw = &doc.as_json().images[img.index()];
+        if raw.buffer_view.is_some() && raw.mime_type.is_none() || raw.buffer_view.is_none() && raw.uri.is_none() {
+            return Err(Error::input(path, format!("{what}: needs a uri, or a bufferView with a mimeType")));
+        }
         let (encoded, mime, uri): (std::borrow::Cow<[u8]>, Option<&str>, Option<&str>) = match img.source() {
             gltf::image::Source::View { view, mime_type } => {
                 let r = view_range(&view, &buffers).ok_or_else(|| Error::input(path, format!("{what}: buffer view {} lies outside its buffer", view.index())))?;
@@ -726,6 +732,17 @@ mod tests {
             glb.extend_from_slice(&[0u8; 16]);
             let e = err_of(read_mem(&glb));
             assert!(e.contains("GLB header declares"), "{e}");
+        }
+    }
+
+    /// Found by the `gltf_in` fuzz target: an image with a buffer view but no mimeType
+    /// (or with neither a view nor a URI) made `gltf::Image::source` unwrap `None`.
+    #[test]
+    fn image_without_mime_type_or_source_is_an_error() {
+        for image in [json!({ "bufferView": 0 }), json!({ "name": "nothing" })] {
+            let bytes = triangle(|d| d["images"] = json!([image]));
+            let e = err_of(read_mem(&bytes));
+            assert!(e.contains("image 0: needs a uri"), "{e}");
         }
     }
 
