@@ -264,7 +264,18 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             return Err(Error::input(path, format!("GLB header declares {declared} bytes, less than the header itself")));
         }
     }
-    let gltf::Gltf { document: doc, mut blob } = gltf::Gltf::from_slice(bytes).map_err(|e| Error::input(path, e.to_string()))?;
+    let gltf::Gltf { document: doc, mut blob } = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| Error::input(path, e.to_string()))?;
+    // gltf-json 1.4.1's validation indexes the POSITION accessor before checking that it
+    // exists (a panic, found by the gltf_in fuzz target): check that first, then validate.
+    let root = doc.into_json();
+    for (mi, m) in root.meshes.iter().enumerate() {
+        for (pi, p) in m.primitives.iter().enumerate() {
+            if let Some(a) = p.attributes.values().find(|a| a.value() >= root.accessors.len()) {
+                return Err(Error::input(path, format!("mesh {mi} primitive {pi}: accessor {} does not exist", a.value())));
+            }
+        }
+    }
+    let doc = gltf::Document::from_json(root).map_err(|e| Error::input(path, e.to_string()))?;
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for b in doc.buffers() {
         let what = format!("buffer {}", b.index());
@@ -744,6 +755,18 @@ mod tests {
             let e = err_of(read_mem(&bytes));
             assert!(e.contains("image 0: needs a uri"), "{e}");
         }
+    }
+
+    /// Found by the `gltf_in` fuzz target: a POSITION attribute naming an accessor that
+    /// does not exist made gltf-json's own validation index out of bounds.
+    #[test]
+    fn missing_position_accessor_is_an_error() {
+        let bytes = triangle(|d| d["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(7));
+        let e = err_of(read_mem(&bytes));
+        assert!(e.contains("accessor 7 does not exist"), "{e}");
+        let bytes = triangle(|d| d["accessors"] = json!([]));
+        let e = err_of(read_mem(&bytes));
+        assert!(e.contains("accessor 0 does not exist"), "{e}");
     }
 
     #[test]
