@@ -13,12 +13,16 @@
 //! chunk; a `.gltf` output next to its input keeps the input's URIs; a `.gltf` output
 //! in another folder gets copies of the input's external files at the same relative
 //! paths (a `.glb` input's BIN chunk becomes `<output>.bin`). Data URIs stay as they are.
-//! Writes are atomic; the input is never overwritten.
+//! Every file of an output is staged under a temporary name and all are renamed together,
+//! the glTF last ([`q3gltf_convert::output::Staged`]): an error or an interruption leaves
+//! nothing. The input is never overwritten.
 
 use std::path::{Component, Path, PathBuf};
 
 use glam::{DMat4, DVec3};
 use serde_json::{json, Map, Value};
+
+use q3gltf_convert::output::Staged;
 
 use crate::error::{Error, Result};
 
@@ -188,8 +192,8 @@ fn embed_resources(json: &mut Value, bin: &mut Option<Vec<u8>>, input: &Path, in
 }
 
 /// `.gltf` output in another folder: the input's external files are copied beside it,
-/// at the same relative paths.
-fn copy_resources(json: &Value, input: &Path, in_dir: &Path, out_dir: &Path) -> Result<()> {
+/// at the same relative paths (staged with the rest of the output).
+fn copy_resources(json: &Value, input: &Path, in_dir: &Path, out_dir: &Path, staged: &mut Staged) -> Result<()> {
     for (_, _, uri) in external_uris(json) {
         let (rel, bytes) = read_resource(input, in_dir, &uri)?;
         let dest = out_dir.join(&rel);
@@ -197,9 +201,9 @@ fn copy_resources(json: &Value, input: &Path, in_dir: &Path, out_dir: &Path) -> 
             return Err(Error::Usage(format!("{}: copying {uri:?} there would overwrite the input", dest.display())));
         }
         if let Some(parent) = dest.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| Error::Io { path: parent.display().to_string(), source: e })?;
+            staged.create_dir_all(parent).map_err(|e| Error::Io { path: parent.display().to_string(), source: e })?;
         }
-        q3gltf_convert::output::write_atomic(&dest, &bytes).map_err(|e| Error::Io { path: dest.display().to_string(), source: e })?;
+        staged.add(&dest, &bytes).map_err(|e| Error::Io { path: dest.display().to_string(), source: e })?;
     }
     Ok(())
 }
@@ -352,18 +356,19 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
     let (in_dir, out_dir) = (abs_dir(input), abs_dir(output));
     let io_err = |p: &Path, e: std::io::Error| Error::Io { path: p.display().to_string(), source: e };
     let mut bin = bin;
+    let mut staged = Staged::new();
     if is_glb(output) {
         embed_resources(&mut json, &mut bin, input, &in_dir)?;
     } else {
         if in_dir != out_dir {
-            copy_resources(&json, input, &in_dir, &out_dir)?;
+            copy_resources(&json, input, &in_dir, &out_dir, &mut staged)?;
         }
         if let Some(b) = bin.take() {
             let bin_path = output.with_extension("bin");
             if q3gltf_convert::output::same_file(&bin_path, input) {
                 return Err(Error::Usage(format!("{}: the buffer would overwrite the input", bin_path.display())));
             }
-            q3gltf_convert::output::write_atomic(&bin_path, &b).map_err(|e| io_err(&bin_path, e))?;
+            staged.add(&bin_path, &b).map_err(|e| io_err(&bin_path, e))?;
             let name = bin_path.file_name().unwrap().to_string_lossy().replace('%', "%25").replace(' ', "%20");
             if let Some(b0) = json.get_mut("buffers").and_then(|b| b.get_mut(0)) {
                 b0["uri"] = json!(name);
@@ -372,7 +377,8 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
     }
     let text = serde_json::to_vec(&json).map_err(|e| Error::Usage(format!("JSON: {e}")))?;
     let bytes = if is_glb(output) { glb(&text, bin.as_deref()) } else { text };
-    q3gltf_convert::output::write_atomic(output, &bytes).map_err(|e| io_err(output, e))
+    staged.add(output, &bytes).map_err(|e| io_err(output, e))?;
+    staged.commit().map_err(|e| io_err(output, e))
 }
 
 fn glb(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
