@@ -35,8 +35,9 @@ use crate::texel;
 
 /// A texel centre counts as inside a triangle down to this barycentric coordinate.
 pub const EDGE_TOLERANCE: f64 = 1e-4;
-/// A triangle whose lightmap footprint spans more texels than this is refused (its UVs
-/// are not a lightmap's); the count is reported.
+/// A triangle whose lightmap footprint (or its bounding box: a sliver can be thin but
+/// long) spans more texels than this is refused (its UVs are not a lightmap's); the count
+/// is reported.
 pub const MAX_TEXELS_PER_TRIANGLE: f64 = 4.0 * 1024.0 * 1024.0;
 /// Albedo samples per texel side.
 const ALBEDO_SAMPLES: usize = 4;
@@ -103,6 +104,11 @@ pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Lu
         let y0 = ((lo.y - 0.5).ceil().max(0.0)) as usize;
         let x1 = ((hi.x - 0.5).floor().min(w as f64 - 1.0)).max(-1.0) as i64;
         let y1 = ((hi.y - 0.5).floor().min(h as f64 - 1.0)).max(-1.0) as i64;
+        let box_texels = (x1 - x0 as i64 + 1).max(0) as f64 * (y1 - y0 as i64 + 1).max(0) as f64;
+        if box_texels > MAX_TEXELS_PER_TRIANGLE {
+            st.triangles_refused += 1;
+            continue;
+        }
         let [pa, pb_, pc] = tri.map(|v| mesh.positions[v]);
         let [na, nb, nc] = tri.map(|v| mesh.normals[v]);
         let [ua, ub, uc] = tri.map(|v| mesh.uv0[v]);
@@ -271,5 +277,18 @@ mod tests {
         let lx = problem(&scene, &Target::empty(4), 3.0);
         assert_eq!(lx.stats.triangles_refused, 2);
         assert_eq!(lx.problem.len(), 0);
+    }
+
+    #[test]
+    fn a_long_sliver_in_lightmap_space_is_refused_without_scanning_its_box() {
+        let mut scene = floor_scene();
+        scene.textures[0] = Texture { width: 4096, height: 1100, rgba8: vec![0; 4096 * 1100 * 4], wrap_s: Wrap::Clamp, wrap_t: Wrap::Clamp };
+        // Triangle 0 becomes a sliver along the atlas's diagonal: an area of a few texels,
+        // a box of 4096 x 1100 texels (over the limit).
+        scene.mesh.uv1[0] = Vec2::new(0.0, 0.0);
+        scene.mesh.uv1[1] = Vec2::new(1.0, 1.0);
+        scene.mesh.uv1[2] = Vec2::new(1.0, 1.0 - 1e-5);
+        let lx = problem(&scene, &Target::empty(4), 3.0);
+        assert!(lx.stats.triangles_refused >= 1, "{:?}", lx.stats);
     }
 }
