@@ -101,7 +101,7 @@ pub struct Phase {
 /// One objective evaluation that ended an iteration.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct IterRecord {
-    /// Seconds since the optimisation started.
+    /// Seconds since the fitter's `start` (the run's start in the report).
     pub time_s: f64,
     pub phase: usize,
     pub iteration: usize,

@@ -74,15 +74,20 @@ pub struct AutoStats {
     pub added: usize,
     /// Relative error on the subsample after each addition.
     pub errors: Vec<f64>,
+    /// The placement's own iterations (on the subsample), for the report's curve.
+    #[serde(skip)]
+    pub history: Vec<crate::fit::IterRecord>,
 }
 
 /// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
 #[allow(clippy::too_many_arguments)]
-pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>) -> (Vec<Light>, AutoStats) {
+/// `start_time` is the clock of the run, for the iteration records.
+pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Vec<Light>, AutoStats) {
     let sub = pb.subsample(sample, seed);
     let diag = (hi - lo).length().max(1e-3);
     let mut backend = Cpu { pb: &sub, bvh };
     let mut fit = Fitter::new(&sub, bvh, &mut backend, lo, hi);
+    fit.start = start_time;
     fit.deadline = deadline;
     // The global terms the model starts with (the indirect term): lights are placed for
     // what they leave unexplained.
@@ -91,7 +96,7 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
     for (l, locked) in start {
         fit.add_light(*l, *locked);
     }
-    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new() };
+    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new(), history: Vec::new() };
     let mut err = if fit.lights.is_empty() && fit.globals == crate::fit::Globals::default() { 1.0 } else { fit.fit_intensities() };
     let spacing = 0.05 * diag;
     while fit.lights.len() < max_lights && !fit.out_of_time() {
@@ -179,6 +184,7 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
         stats.added += 1;
         err = e;
     }
+    stats.history = std::mem::take(&mut fit.history);
     (fit.lights.clone(), stats)
 }
 

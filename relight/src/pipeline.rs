@@ -388,7 +388,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
             let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline);
+            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
             auto_stats = Some(stats);
             src.resize(lights.len(), None);
             let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
@@ -399,6 +399,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     let mut fit = Fitter::new(&pb, &bvh, backend.as_mut(), lo, hi);
     fit.deadline = deadline;
+    // One clock for the whole run: the report's curve shows placement and fit together.
+    fit.start = t_all;
     fit.globals = globals0;
     fit.sky = sky.clone();
     let mut sources = sources;
@@ -503,7 +505,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         })
         .collect();
     let phases_done = fit.phases.clone();
-    let history = fit.history.clone();
+    // The placement's iterations (on its subsample) first, then the fit's.
+    let mut history: Vec<IterRecord> = auto_stats.as_mut().map(|a| std::mem::take(&mut a.history)).unwrap_or_default();
+    history.extend(fit.history.iter().cloned());
     let evaluations = fit.evaluations;
     let rays = fit.vis.rays;
     let ambient = fit.globals.ambient;

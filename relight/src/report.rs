@@ -103,7 +103,9 @@ pub fn write_plot(report: &Report, path: &Path) -> Result<()> {
     for k in 0..=5 {
         let t = t_max * k as f64 / 5.0;
         line(&mut img, (sx(t), top), (sx(t), top + ph), grey);
-        text(&mut img, sx(t) as i64 - 10, (top + ph) as i64 + 8, &format!("{t:.1}"), 2, black);
+        // Enough decimals that the ticks differ (a small scene optimises in milliseconds).
+        let decimals = (1.0 - (t_max / 5.0).log10().floor()).clamp(0.0, 4.0) as usize;
+        text(&mut img, sx(t) as i64 - 10, (top + ph) as i64 + 8, &format!("{t:.decimals$}"), 2, black);
     }
     line(&mut img, (left, top), (left, top + ph), black);
     line(&mut img, (left, top + ph), (left + pw, top + ph), black);
