@@ -158,7 +158,7 @@ pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Lu
                 let o = (y * w + x) * 4;
                 let bytes = [lm.rgba8[o], lm.rgba8[o + 1], lm.rgba8[o + 2]];
                 let value = [0, 1, 2].map(|ch| albedo[ch] * mat.decode(bytes[ch] as f32 / 255.0));
-                let censored = bytes.iter().any(|&v| v >= CENSOR_BYTE);
+                let censored = bytes.contains(&CENSOR_BYTE);
                 if !pos.is_finite() || !value.iter().all(|v| v.is_finite()) {
                     continue;
                 }

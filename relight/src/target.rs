@@ -141,7 +141,7 @@ pub fn triangle_sums(scene: &Scene, t: usize, out: &mut [f32; 3 * CORNER_FLOATS]
                 // q3map2 scales an overflowing texel down keeping its hue: when one channel
                 // is at 255, every channel of the texel is a lower bound.
                 let near = texel::nearest(tx, uv1.x, uv1.y);
-                let censored = near[..3].iter().any(|&b| b >= CENSOR_BYTE);
+                let censored = near[..3].contains(&CENSOR_BYTE);
                 (e, [censored; 3])
             }
             None => ([0.0; 3], [false; 3]),
