@@ -64,6 +64,21 @@ fn sun_visible(i: u32) -> bool {
     return prm.sun_dir.w > 0.5 && ((sun_vis[i >> 5u] >> (i & 31u)) & 1u) == 1u;
 }
 
+// Sums `a` and `b` over the workgroup and stores the 8 sums at `partial[o..o + 8]`
+// (a.xyzw, then b.xyzw). Every invocation of the workgroup must call it.
+fn reduce_store(lid: u32, a: vec4<f32>, b: vec4<f32>, o: u32) {
+    red_a[lid] = a;
+    red_b[lid] = b;
+    reduce(lid);
+    if (lid == 0u) {
+        for (var q = 0u; q < 4u; q = q + 1u) {
+            partial[o + q] = red_a[0][q];
+            partial[o + 4u + q] = red_b[0][q];
+        }
+    }
+    workgroupBarrier();
+}
+
 fn reduce(lid: u32) {
     for (var s = WG / 2u; s > 0u; s = s >> 1u) {
         workgroupBarrier();
@@ -129,19 +144,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             gi = rho_a * gt.g;
             gp = gt.dg * dot(rho_a, lights[2u * j + 1u].xyz);
         }
-        red_a[lid] = vec4<f32>(gp, 0.0);
-        red_b[lid] = vec4<f32>(gi, 0.0);
-        reduce(lid);
-        if (lid == 0u) {
-            let o = base + 8u * j;
-            partial[o] = red_a[0].x;
-            partial[o + 1u] = red_a[0].y;
-            partial[o + 2u] = red_a[0].z;
-            partial[o + 3u] = red_b[0].x;
-            partial[o + 4u] = red_b[0].y;
-            partial[o + 5u] = red_b[0].z;
-        }
-        workgroupBarrier();
+        reduce_store(lid, vec4<f32>(gp, gi.x), vec4<f32>(gi.yz, 0.0, 0.0), base + 8u * j);
     }
     // The sun's gradient.
     var gw = vec3<f32>(0.0);
@@ -150,31 +153,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         gs = rho_a * cos_sun;
         gw = v.normal * dot(rho_a, prm.sun_rgb.xyz);
     }
-    red_a[lid] = vec4<f32>(gw, 0.0);
-    red_b[lid] = vec4<f32>(gs, 0.0);
-    reduce(lid);
-    if (lid == 0u) {
-        let o = base + 8u * prm.k;
-        partial[o] = red_a[0].x;
-        partial[o + 1u] = red_a[0].y;
-        partial[o + 2u] = red_a[0].z;
-        partial[o + 3u] = red_b[0].x;
-        partial[o + 4u] = red_b[0].y;
-        partial[o + 5u] = red_b[0].z;
-    }
-    workgroupBarrier();
-    red_a[lid] = vec4<f32>(f, num, gk.x, gk.y);
-    red_b[lid] = vec4<f32>(ga, gk.z);
-    reduce(lid);
-    if (lid == 0u) {
-        let o = base + 8u * (prm.k + 1u);
-        partial[o] = red_a[0].x;
-        partial[o + 1u] = red_a[0].y;
-        partial[o + 2u] = red_b[0].x;
-        partial[o + 3u] = red_b[0].y;
-        partial[o + 4u] = red_b[0].z;
-        partial[o + 5u] = red_a[0].z;
-        partial[o + 6u] = red_a[0].w;
-        partial[o + 7u] = red_b[0].w;
-    }
+    reduce_store(lid, vec4<f32>(gw, gs.x), vec4<f32>(gs.yz, 0.0, 0.0), base + 8u * prm.k);
+    reduce_store(lid, vec4<f32>(f, num, ga.xy), vec4<f32>(ga.z, gk), base + 8u * (prm.k + 1u));
 }

@@ -104,6 +104,22 @@ fn percent_decode(s: &str) -> Option<String> {
     String::from_utf8(out).ok()
 }
 
+/// The path a relative (non-`data:`) URI names inside the glTF's directory: `%XX`
+/// decoded, `\` read as `/`; refused (with why) when it could leave the directory: `..`,
+/// an absolute path, a drive letter or other scheme, NUL, or a malformed escape. The
+/// writer ([`crate::lights_out`]) resolves the URIs it copies with the same rule.
+pub fn relative_uri(uri: &str) -> std::result::Result<String, &'static str> {
+    let rel = percent_decode(uri).ok_or("malformed percent escape")?;
+    let slashed = rel.replace('\\', "/");
+    if slashed.contains('\0') || slashed.contains(':') {
+        return Err("a scheme, drive letter or NUL");
+    }
+    if slashed.is_empty() || slashed.starts_with('/') || slashed.split('/').any(|c| c == "..") {
+        return Err("must be a relative path inside the glTF's directory");
+    }
+    Ok(slashed)
+}
+
 /// Where a URI points, after the safety rules: data URIs are decoded; relative paths must
 /// stay inside the glTF's directory (no `..`, no absolute path, no drive letter, no NUL,
 /// no other scheme), and are only read when the input came from a directory.
@@ -113,14 +129,7 @@ fn read_uri(uri: &str, base: Option<&Path>, shown: &Path, what: &str) -> Result<
         return base64_decode(data).ok_or_else(|| Error::input(shown, format!("{what}: invalid base64 in data URI")));
     }
     let bad = |why: &str| Error::input(shown, format!("{what}: refused URI {:?} ({why})", uri.escape_debug().to_string()));
-    let rel = percent_decode(uri).ok_or_else(|| bad("malformed percent escape"))?;
-    let slashed = rel.replace('\\', "/");
-    if slashed.contains('\0') || slashed.contains(':') {
-        return Err(bad("a scheme, drive letter or NUL"));
-    }
-    if slashed.is_empty() || slashed.starts_with('/') || slashed.split('/').any(|c| c == "..") {
-        return Err(bad("must be a relative path inside the glTF's directory"));
-    }
+    let slashed = relative_uri(uri).map_err(bad)?;
     let base = base.ok_or_else(|| bad("external file in an in-memory glTF"))?;
     let p = base.join(&slashed);
     let io = |e: std::io::Error| Error::input(shown, format!("{what}: {}: {e}", p.display()));

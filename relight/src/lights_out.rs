@@ -17,7 +17,7 @@
 //! the glTF last ([`q3gltf_convert::output::Staged`]): an error or an interruption leaves
 //! nothing. The input is never overwritten.
 
-use std::path::{Component, Path, PathBuf};
+use std::path::{Path, PathBuf};
 
 use glam::{DMat4, DVec3};
 use serde_json::{json, Map, Value};
@@ -102,31 +102,6 @@ fn abs_dir(p: &Path) -> PathBuf {
     dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf())
 }
 
-/// The file a relative URI names inside the glTF's folder: `%XX` decoded, `\` read as `/`;
-/// `None` for anything that could leave the folder (`..`, an absolute path, a drive letter
-/// or scheme, NUL) or a malformed escape. The same rules as the reader's.
-pub fn relative_uri_path(uri: &str) -> Option<PathBuf> {
-    let b = uri.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' {
-            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    let s = String::from_utf8(out).ok()?.replace('\\', "/");
-    if s.is_empty() || s.contains('\0') || s.contains(':') || s.starts_with('/') {
-        return None;
-    }
-    let p: PathBuf = s.split('/').filter(|c| !c.is_empty() && *c != ".").collect();
-    p.components().all(|c| matches!(c, Component::Normal(_))).then_some(p).filter(|p| p.components().next().is_some())
-}
-
 /// External (non-data) URIs of buffers and images: `(key, index, uri)`.
 fn external_uris(json: &Value) -> Vec<(&'static str, usize, String)> {
     let mut out = Vec::new();
@@ -143,7 +118,7 @@ fn external_uris(json: &Value) -> Vec<(&'static str, usize, String)> {
 
 /// Reads the file an external URI of the input names.
 fn read_resource(input: &Path, in_dir: &Path, uri: &str) -> Result<(PathBuf, Vec<u8>)> {
-    let rel = relative_uri_path(uri).ok_or_else(|| Error::input(input, format!("refused URI {:?}: not a relative path inside the glTF's folder", uri.escape_debug().to_string())))?;
+    let rel = PathBuf::from(crate::gltf_in::relative_uri(uri).map_err(|why| Error::input(input, format!("refused URI {:?} ({why})", uri.escape_debug().to_string())))?);
     let p = in_dir.join(&rel);
     let bytes = std::fs::read(&p).map_err(|e| Error::Io { path: p.display().to_string(), source: e })?;
     Ok((rel, bytes))
