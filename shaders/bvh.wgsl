@@ -52,7 +52,8 @@ fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
     return dot(e2, q) * inv;
 }
 
-fn occluded(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
+// Hits with t in (t_min, t_max) count (t_min >= 0).
+fn occluded(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
     if (arrayLength(&tris) == 0u) {
         return false;
     }
@@ -70,7 +71,7 @@ fn occluded(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
         if (node.count > 0u) {
             for (var k = 0u; k < node.count; k = k + 1u) {
                 let t = intersect(tris[node.right_or_first + k], o, d);
-                if (t > 0.0 && t < t_max) {
+                if (t > t_min && t < t_max) {
                     return true;
                 }
             }

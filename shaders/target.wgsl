@@ -44,7 +44,7 @@ struct TargetParams {
 }
 
 const CORNER: u32 = 13u;
-const CENSOR: u32 = 255u;
+const CENSOR: u32 = 254u; // relight/src/target.rs CENSOR_BYTE
 // Texel coordinates are clamped to +-2^24 before rounding (CPU: texel::COORD_LIMIT).
 const COORD_LIMIT: f32 = 16777216.0;
 
@@ -92,12 +92,13 @@ fn nearest(t: TexInfo, uv: vec2<f32>) -> vec4<u32> {
     return texel(t, i32(floor(coord(uv.x, t.width))), i32(floor(coord(uv.y, t.height))));
 }
 
-// kind 0: sRGB decode; kind 1: lightmap decode with `scale` and `gamma`.
+// kind 0: sRGB decode; kind 1: lightmap decode with `scale` and `gamma`, from the
+// middle of the byte's interval (q3map2 truncates; relight/src/scene.rs Material::decode).
 fn decode(v: f32, kind: u32, scale: f32, gamma: f32) -> f32 {
     if (kind == 0u) {
         return srgb_to_linear(v);
     }
-    let c = clamp(v, 0.0, 1.0);
+    let c = min(clamp(v, 0.0, 1.0) + 0.5 / 255.0, 1.0);
     var g = c;
     if (gamma != 1.0) {
         g = pow(c, gamma);

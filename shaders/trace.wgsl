@@ -1,5 +1,5 @@
-// Visibility bits: one invocation per (problem vertex, light of the batch).
-// Needs bvh.wgsl and problem.wgsl prepended. Bit i of word light*words + i/32 is set when
+// Visibility bits: one invocation per (row, light of the batch).
+// Needs bvh.wgsl and rows.wgsl prepended. Bit i of word light*words + i/32 is set when
 // the light is in front of vertex i and the shadow ray reaches it.
 
 struct TraceParams {
@@ -7,26 +7,31 @@ struct TraceParams {
     lights: u32,
     words: u32,
     ray_offset: f32,
+    inhibit: f32,
+    pad0: f32,
+    pad1: f32,
+    pad2: f32,
 }
 
 @group(0) @binding(0) var<uniform> tp: TraceParams;
-@group(0) @binding(1) var<storage, read> verts: array<Vertex>;
+@group(0) @binding(1) var<storage, read> verts: array<Row>;
 @group(0) @binding(2) var<storage, read> nodes: array<Node>;
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
 @group(0) @binding(4) var<storage, read> light_pos: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> bits: array<atomic<u32>>;
 
-fn visible_from(x: vec3<f32>, n: vec3<f32>, light: vec3<f32>, offset: f32) -> bool {
+// relight/src/visibility.rs visible_from is the reference.
+fn visible_from(x: vec3<f32>, n: vec3<f32>, light: vec3<f32>, offset: f32, inhibit: f32) -> bool {
     if (dot(n, light - x) <= 0.0) {
         return false;
     }
     let o = x + n * offset;
     let d = light - o;
     let len = length(d);
-    if (!(len > offset)) {
+    if (!(len > max(offset, inhibit))) {
         return true;
     }
-    return !occluded(o, d, 1.0 - offset / len);
+    return !occluded(o, d, inhibit / len, 1.0 - offset / len);
 }
 
 @compute @workgroup_size(64)
@@ -37,7 +42,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let v = verts[i];
-    if (visible_from(v.pos, v.normal, light_pos[j].xyz, tp.ray_offset)) {
+    // light_pos[j].w: the reach; farther rows get no bit (relight/src/trace/visibility.rs).
+    let d = v.pos - light_pos[j].xyz;
+    if (dot(d, d) <= light_pos[j].w * light_pos[j].w && visible_from(v.pos, v.normal, light_pos[j].xyz, tp.ray_offset, tp.inhibit)) {
         atomicOr(&bits[j * tp.words + (i >> 5u)], 1u << (i & 31u));
     }
 }

@@ -88,6 +88,11 @@ struct ConvertArgs {
     /// KHR_lights_punctual lights, converted with q3map2's formula (candela, lux).
     #[arg(long = "entity-lights")]
     entity_lights: bool,
+    /// The map's .map source (mappers keep it; q3map2 strips light entities from the
+    /// BSP): its light entities become KHR_lights_punctual point and spot lights
+    /// (q3map2's units: about 163 cd per unit of `light`), plus the sky shaders' suns.
+    #[arg(long = "lights-from", value_name = "SRC.map")]
+    lights_from: Option<PathBuf>,
     /// Also write the MOZ_lightmap material extension (in extensionsUsed only).
     #[arg(long = "moz-lightmap")]
     moz_lightmap: bool,
@@ -164,6 +169,7 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
         patch_tolerance: a.patch_tolerance,
         no_sky: a.no_sky,
         entity_lights: a.entity_lights,
+        lights_from: a.lights_from.clone(),
         moz_lightmap: a.moz_lightmap,
         overbright_bits: a.overbright_bits,
         ..Options::default()

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
-use q3gltf_relight::pipeline::{self, BackendChoice, Init, Optional, Options, Progress, Subdivide, TargetSpace};
+use q3gltf_relight::pipeline::{self, BackendChoice, FitMode, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
 #[derive(Args)]
@@ -58,20 +58,41 @@ pub struct RelightArgs {
     /// Plot relative error against time as a PNG.
     #[arg(long, value_name = "curve.png")]
     pub plot: Option<PathBuf>,
-    /// Indirect light gathered from the baked data (light that bounced off other
-    /// surfaces): `auto` keeps it where it lowers the error, then the lights are the
-    /// direct light only and the scene needs a renderer with global illumination to look
-    /// like its lightmaps; `off` makes the lights carry the bounced light too.
+    /// What the fit may change: `all`, or `globals` (the lights and the map's emitters
+    /// stay as the file has them; only the compile's global terms are fitted: how well a
+    /// map's own sources, e.g. from `convert --lights-from`, explain its lightmaps).
+    #[arg(long, default_value = "all", value_parser = ["all", "globals"])]
+    pub fit: String,
+    /// Bounced light: the light of the model's own emitters reflected by the scene, as a
+    /// renderer with global illumination computes it (each pass scaled by a fitted factor
+    /// in (0, 1], q3map2's `-bouncescale`). With it the written lights are the direct
+    /// light only: render with global illumination. `auto`: as the map's recorded compile
+    /// says (`-bounce N`), else where it lowers the error.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
-    pub indirect: String,
-    /// A sun (directional light) for maps with sky: `auto` searches one when the scene has
-    /// sky surfaces or a directional light (with `--init input`: starts from the file's)
-    /// and keeps it where it lowers the error; written as a KHR directional light in lux.
+    pub bounce: String,
+    /// Rays per row for the bounce operator (rounded up to a square).
+    #[arg(long = "bounce-rays", default_value_t = 16)]
+    pub bounce_rays: usize,
+    /// A sun (directional light) for maps with sky: the sky shader's `q3map_sun` when the
+    /// file has it as a directional light (convert `--entity-lights`), else searched;
+    /// kept where it lowers the error; written as a KHR directional light in lux.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub sun: String,
-    /// Gather rays per target row for `--indirect` (rounded up to a square).
-    #[arg(long = "indirect-rays", default_value_t = 16)]
-    pub indirect_rays: usize,
+    /// The sky light of the map's sky shaders (`q3map_skyLight`), written as the sky
+    /// surfaces' emission.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub sky: String,
+    /// The map's surface lights (`q3map_surfacelight` shaders), one radiance per shader,
+    /// written as emissive materials.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub surfaces: String,
+    /// q3map2's dirt (`-dirt`: ambient occlusion multiplied in): `auto` as the recorded
+    /// compile says, else where it lowers the error.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub dirt: String,
+    /// q3map2's lightmap filter (`-filter`: a 3x3 blur of each light): as `--dirt`.
+    #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
+    pub filter: String,
     /// Chooses which vertices `--init auto` samples (every k-th vertex from offset seed % k);
     /// the same seed gives the same result.
     #[arg(long, default_value_t = 1)]
@@ -81,6 +102,11 @@ pub struct RelightArgs {
     /// inspecting the subdivision in MeshLab.
     #[arg(long = "write-mesh", value_name = "mesh.ply")]
     pub write_mesh: Option<PathBuf>,
+    /// Also write every row's data and the final model's value there as CSV (material,
+    /// texel, position, normal, albedo, the data's interval, the model, the area): where
+    /// the model and the lightmap disagree.
+    #[arg(long = "dump-rows", value_name = "rows.csv")]
+    pub dump_rows: Option<PathBuf>,
     /// No progress display.
     #[arg(short, long)]
     pub quiet: bool,
@@ -188,18 +214,24 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
             _ => BackendChoice::Auto,
         },
         seed: a.seed,
-        indirect: match a.indirect.as_str() {
-            "on" => Optional::On,
-            "off" => Optional::Off,
-            _ => Optional::Auto,
-        },
-        indirect_rays: a.indirect_rays.clamp(1, 1024),
-        sun: match a.sun.as_str() {
-            "on" => Optional::On,
-            "off" => Optional::Off,
-            _ => Optional::Auto,
-        },
+        fit: if a.fit == "globals" { FitMode::Globals } else { FitMode::All },
+        bounce: optional(&a.bounce),
+        bounce_rays: a.bounce_rays.clamp(1, 1024),
+        sun: optional(&a.sun),
+        sky: optional(&a.sky),
+        surfaces: optional(&a.surfaces),
+        dirt: optional(&a.dirt),
+        filter: optional(&a.filter),
+        dump_rows: a.dump_rows.clone(),
     })
+}
+
+fn optional(s: &str) -> Optional {
+    match s {
+        "on" => Optional::On,
+        "off" => Optional::Off,
+        _ => Optional::Auto,
+    }
 }
 
 pub fn run(a: RelightArgs) -> Result<(), String> {
@@ -236,10 +268,21 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
             rep.target.with_target, rep.target.censored, rep.target.no_coverage
         ),
     }
-    println!("  lights    {} (pruned {}, merged {}); indirect {}; ambient {}", rep.lights.len(), rep.pruned, rep.merged, rep.indirect_note, rep.ambient_note);
-    match &rep.sun {
-        Some(s) => println!("  sun       elevation {:.1} deg, azimuth {:.1} deg, {:.0} lux ({})", s.elevation_deg, s.azimuth_deg, s.illuminance_lux, rep.sun_note),
-        None => println!("  sun       {}", rep.sun_note),
+    let spots = rep.lights.iter().filter(|l| l.kind == "spot").count();
+    println!("  lights    {} ({} spots; pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged);
+    if let Some(s) = &rep.sun {
+        println!("  sun       elevation {:.1} deg, azimuth {:.1} deg, {:.0} lux", s.elevation_deg, s.azimuth_deg, s.illuminance_lux);
+    }
+    let on: Vec<String> = rep.surfaces.iter().filter_map(|s| s.radiance.map(|r| format!("{} {:.3}", s.shader, r.iter().copied().fold(0.0f32, f32::max)))).collect();
+    if !rep.surfaces.is_empty() {
+        println!("  surfaces  {} of {} emitting shaders kept{}{}", on.len(), rep.surfaces.len(), if on.is_empty() { "" } else { ": " }, on.join(", "));
+    }
+    println!("  compile   {}", rep.compile_note);
+    for t in &rep.terms {
+        println!("  term      {:<28} {} (error {:.4} without, {:.4} with)", t.term, if t.kept { "kept" } else { "off " }, t.rel_error_without, t.rel_error_with);
+    }
+    if let Some(m) = rep.residual_by_material.first() {
+        println!("  residual  largest on {} ({:.0}% of it, its error {:.3})", m.material, 100.0 * m.residual_share, m.rel_error);
     }
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();

@@ -179,6 +179,7 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
 
     // Materials.
     let mut moz_used = false;
+    let mut emissive_strength_used = false;
     for m in &scene.materials {
         let info = |t: usize, tex_coord: u32| json::texture::Info {
             index: json::Index::new(t as u32),
@@ -217,6 +218,18 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
                 ext.others.insert("MOZ_lightmap".into(), serde_json::json!({ "index": lm, "texCoord": 1, "intensity": 1.0 }));
                 mat.extensions = Some(ext);
                 moz_used = true;
+            }
+        }
+        if let Some((color, radiance)) = m.emissive {
+            // glTF's emissiveFactor is in [0, 1]; the strength extension carries the rest.
+            let strength = radiance.max(0.0);
+            if strength <= 1.0 {
+                mat.emissive_factor = json::material::EmissiveFactor(color.map(|c| c * strength));
+            } else {
+                mat.emissive_factor = json::material::EmissiveFactor(color);
+                let ext = mat.extensions.get_or_insert_with(Default::default);
+                ext.others.insert("KHR_materials_emissive_strength".into(), serde_json::json!({ "emissiveStrength": strength }));
+                emissive_strength_used = true;
             }
         }
         b.root.push(mat);
@@ -299,6 +312,9 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
     }
     if moz_used {
         b.root.extensions_used.push("MOZ_lightmap".into());
+    }
+    if emissive_strength_used {
+        b.root.extensions_used.push("KHR_materials_emissive_strength".into());
     }
 
     // Nodes and the scene.

@@ -12,7 +12,7 @@
 //! * [`shader`]: shader script parsing.
 //! * [`material`]: shader + scripts -> visibility, albedo image, alpha, sidedness.
 //! * [`texture`]: image files -> glTF-ready PNG/JPEG bytes, with limits.
-//! * [`entities`]: the entity lump.
+//! * [`entities`]: the entity lump; [`mapfile`]: the entities of a `.map` source.
 //! * [`patch`]: adaptive, stitched Bezier patch tessellation.
 //! * [`lightmaps`], [`atlas`]: lightmap pages and their packing.
 //! * [`units`]: axes, scale and the radiometric conversions.
@@ -26,6 +26,7 @@ pub mod entities;
 pub mod error;
 pub mod gltf_out;
 pub mod lightmaps;
+pub mod mapfile;
 pub mod material;
 pub mod output;
 pub mod patch;

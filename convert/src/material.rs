@@ -37,6 +37,98 @@ pub struct ShaderInfo {
     pub sun: Option<Sun>,
     /// Whether a shader script defines this shader.
     pub scripted: bool,
+    /// How q3map2 lit the map with this shader.
+    pub light: LightInfo,
+}
+
+/// What q3map2 does with a shader when it lights a map (its `light` stage).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightInfo {
+    /// `q3map_surfacelight`: the surface emits.
+    pub surface: Option<SurfaceLight>,
+    /// `q3map_skyLight` value and iterations (sky shaders).
+    pub sky_lights: Vec<(f64, u32)>,
+    /// The colour q3map2 gives the sky light's suns: the shader's light colour (as a
+    /// surface light's), largest channel 1.
+    pub sky_color: [f64; 3],
+    /// Blocks light: translucent shaders (`trans`, `water`, `slime`, `lava`) cast no
+    /// shadow unless `alphashadow` or `lightfilter`.
+    pub casts_shadow: bool,
+}
+
+impl Default for LightInfo {
+    fn default() -> Self {
+        LightInfo { surface: None, sky_lights: Vec::new(), sky_color: [1.0; 3], casts_shadow: true }
+    }
+}
+
+/// A `q3map_surfacelight` shader, with q3map2's defaults filled in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceLight {
+    /// q3map2's value: a surface filling a sample's hemisphere adds `0.75 value` bytes
+    /// (`formFactorValueScale 3 x areaScale 0.25`).
+    pub value: f64,
+    /// Linear RGB with its largest channel 1: `q3map_lightRGB`, else the average of the
+    /// light image's bytes (`q3map_lightImage`, else the shader's own image), as q3map2.
+    pub color: [f64; 3],
+    /// Largest extent of one emitting patch, Quake units (q3map2's default 999).
+    pub subdivide: f64,
+    /// The backsplash light: a copy of each patch this far in front of it (Quake units),
+    /// facing back, with this fraction of its value (times 7; default 5% at 23 units; sky
+    /// shaders have none).
+    pub backsplash_fraction: f64,
+    pub backsplash_distance: f64,
+}
+
+/// q3map2's `defaultLightSubdivide`, `DEF_BACKSPLASH_FRACTION` and `DEF_BACKSPLASH_DISTANCE`.
+pub const DEFAULT_LIGHT_SUBDIVIDE: f64 = 999.0;
+pub const DEFAULT_BACKSPLASH: (f64, f64) = (0.05, 23.0);
+
+/// Largest light image decoded to find a surface light's colour, bytes.
+const LIGHT_IMAGE_LIMITS: crate::texture::Limits = crate::texture::Limits { max_side: 8192, max_alloc: 1 << 28 };
+
+fn light_info(def: Option<&ShaderDef>, name: &str, vfs: &Vfs) -> LightInfo {
+    let Some(d) = def else { return LightInfo::default() };
+    let translucent = ["trans", "water", "slime", "lava"].iter().any(|p| d.has_parm(p));
+    let casts_shadow = !translucent || d.has_parm("alphashadow") || d.has_parm("lightfilter");
+    let emits = d.surface_light.is_some_and(|v| v > 0.0) || !d.sky_lights.is_empty();
+    let color = if emits { d.light_rgb.map(normalized).unwrap_or_else(|| light_image_color(d, name, vfs)) } else { [1.0; 3] };
+    let surface = d.surface_light.filter(|v| *v > 0.0).map(|value| {
+        let sky = d.sky || d.has_parm("sky");
+        let (backsplash_fraction, backsplash_distance) = if sky { (0.0, 0.0) } else { d.backsplash.unwrap_or(DEFAULT_BACKSPLASH) };
+        SurfaceLight { value, color, subdivide: d.light_subdivide.unwrap_or(DEFAULT_LIGHT_SUBDIVIDE), backsplash_fraction, backsplash_distance }
+    });
+    LightInfo { surface, sky_lights: d.sky_lights.clone(), sky_color: color, casts_shadow }
+}
+
+/// Scales a colour so its largest channel is 1 (white when it has none).
+fn normalized(c: [f64; 3]) -> [f64; 3] {
+    let m = c.iter().copied().fold(0.0, f64::max);
+    if m > 0.0 && m.is_finite() { c.map(|v| v.max(0.0) / m) } else { [1.0; 3] }
+}
+
+/// q3map2's surface-light colour: the average of the raw bytes of the light image, else of
+/// the editor image, the shader's name or its first stage image, normalised.
+fn light_image_color(d: &ShaderDef, name: &str, vfs: &Vfs) -> [f64; 3] {
+    let mut names: Vec<&str> = Vec::new();
+    names.extend(d.light_image.as_deref());
+    names.extend(d.editor_image.as_deref());
+    names.push(name);
+    names.extend(d.albedo_stage().map(|(_, img)| img));
+    for n in names {
+        let Some(path) = find_image(vfs, n) else { continue };
+        let Ok(bytes) = vfs.read(&path) else { continue };
+        let ext = path.rsplit_once('.').map_or("", |(_, e)| e).to_ascii_lowercase();
+        let Ok(img) = crate::texture::decode_rgba(&bytes, &ext, LIGHT_IMAGE_LIMITS) else { continue };
+        let mut sum = [0.0f64; 3];
+        for p in img.pixels() {
+            for c in 0..3 {
+                sum[c] += p[c] as f64;
+            }
+        }
+        return normalized(sum);
+    }
+    [1.0; 3]
 }
 
 /// Tool textures that are never drawn, by last path component under `textures/common/`.
@@ -79,7 +171,9 @@ pub fn resolve(r: &ShaderRef, lib: &ShaderLibrary, vfs: &Vfs) -> ShaderInfo {
         double_sided: false,
         sun: def.and_then(|d| d.sun),
         scripted: def.is_some(),
+        light: LightInfo::default(),
     };
+    info.light = light_info(def, &r.name, vfs);
     if visibility != Visibility::Drawn && visibility != Visibility::Sky {
         return info;
     }

@@ -47,6 +47,9 @@ pub struct Options {
     pub no_sky: bool,
     /// Write `light` entities and `q3map_sun` as KHR_lights_punctual lights.
     pub entity_lights: bool,
+    /// The map's `.map` source: its light entities (which q3map2 strips from the BSP)
+    /// become the scene's lights, as with `entity_lights`.
+    pub lights_from: Option<PathBuf>,
     /// Also write the MOZ_lightmap material extension.
     pub moz_lightmap: bool,
     /// The engine's r_mapOverBrightBits, recorded with the lightmaps and used for lights.
@@ -68,6 +71,7 @@ impl Default for Options {
             patch_tolerance: 4.0,
             no_sky: false,
             entity_lights: false,
+            lights_from: None,
             moz_lightmap: false,
             overbright_bits: units::DEFAULT_OVERBRIGHT_BITS,
             texture_limits: Limits::default(),
@@ -274,6 +278,8 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
 
     // Entities.
     let ents = entities::parse(&bsp.entities).map_err(|m| Error::invalid(&map.shown, format!("entity lump: {m}")))?;
+    // q3map2 `-gamma G` stores `255 (v / 255)^(1/G)`: the lightmaps decode with G.
+    let lightmap_gamma = ents.iter().find(|e| e.classname() == "worldspawn").and_then(|w| w.get("_q3map2_cmdline")).and_then(light_gamma).unwrap_or(1.0);
     summary.entities = ents.len();
 
     // Lightmaps.
@@ -448,11 +454,35 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
         if lighting != Lighting::None {
             extras.insert("q3_encoding".into(), json!("rgb8_linear"));
             extras.insert("q3_overbright_bits".into(), json!(opts.overbright_bits));
-            extras.insert("q3_lightmap_gamma".into(), json!(1.0));
+            extras.insert("q3_lightmap_gamma".into(), json!(lightmap_gamma));
         }
         if info.image.is_none() || Some(tex) == placeholder {
             extras.insert("q3_missing_texture".into(), json!(true));
         }
+        // How q3map2 lit with this shader: relight models it, and with the map's lights
+        // requested the surface light is also written as emission.
+        extras.insert("q3_casts_shadow".into(), json!(info.light.casts_shadow));
+        if let Some(s) = &info.light.surface {
+            extras.insert(
+                "q3_surfacelight".into(),
+                json!({ "value": s.value, "color": s.color, "subdivide": s.subdivide, "backsplash": [s.backsplash_fraction, s.backsplash_distance] }),
+            );
+        }
+        if !info.light.sky_lights.is_empty() {
+            let list: Vec<Value> = info.light.sky_lights.iter().map(|&(v, it)| json!({ "value": v, "iterations": it, "color": info.light.sky_color })).collect();
+            extras.insert("q3_skylight".into(), Value::Array(list));
+        }
+        let emissive = if opts.entity_lights || opts.lights_from.is_some() {
+            let surface = info.light.surface.as_ref().map(|s| (s.color, units::q3map2_surface_radiance(s.value, opts.overbright_bits)));
+            let sky = info.light.sky_lights.iter().map(|&(v, it)| units::q3map2_sky_radiance(v, it, opts.overbright_bits)).sum::<f64>();
+            match (surface, sky > 0.0) {
+                (Some((c, l)), _) => Some((c.map(|x| x as f32), (l + sky) as f32)),
+                (None, true) => Some((info.light.sky_color.map(|x| x as f32), sky as f32)),
+                (None, false) => None,
+            }
+        } else {
+            None
+        };
         scene.materials.push(scene::Material {
             name: format!("{}{}", info.name, suffix),
             base_color_texture: Some(tex),
@@ -463,6 +493,7 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
                 Lighting::Lightmap(k) => Some(lightmap_textures[k]),
                 _ => None,
             },
+            emissive,
             extras: Value::Object(extras),
         });
         material_of.insert(*key, scene.materials.len() - 1);
@@ -499,7 +530,11 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
         let n = scene.add_node(scene::Node { name, mesh: Some(scene.meshes.len() - 1), extras, ..Default::default() });
         scene.roots.push(n);
     }
-    add_entities(&mut scene, &ents, &infos, opts, &mut summary);
+    let source_lights = match &opts.lights_from {
+        Some(path) => Some(read_map_source(path, opts.max_entry_bytes)?),
+        None => None,
+    };
+    add_entities(&mut scene, &ents, source_lights.as_deref(), &infos, opts, &mut summary);
     summary.materials = scene.materials.len();
     summary.images = scene.images.len();
     summary.lights = scene.lights.len();
@@ -588,13 +623,44 @@ fn entity_rotation(e: &Entity) -> Option<[f32; 4]> {
     Some([q.x as f32, q.y as f32, q.z as f32, q.w as f32])
 }
 
+/// The `-gamma G` of the light stage of a recorded q3map2 command line (stages are
+/// separated by `;`), when it is a sane positive number.
+pub fn light_gamma(cmdline: &str) -> Option<f64> {
+    let light = cmdline.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))?;
+    let mut it = light.split_whitespace();
+    while let Some(t) = it.next() {
+        if t.eq_ignore_ascii_case("-gamma") {
+            return it.next()?.parse::<f64>().ok().filter(|g| g.is_finite() && (0.1..=10.0).contains(g));
+        }
+    }
+    None
+}
+
+/// The entities of a `.map` source ([`crate::mapfile`]), read with a size bound.
+fn read_map_source(path: &Path, max_bytes: u64) -> Result<Vec<Entity>, Error> {
+    let shown = path.display().to_string();
+    let meta = std::fs::metadata(path).map_err(|source| Error::Io { path: shown.clone(), source })?;
+    if meta.len() > max_bytes {
+        return Err(Error::invalid(&shown, format!("{} bytes, more than the {max_bytes} accepted for a .map source", meta.len())));
+    }
+    let bytes = std::fs::read(path).map_err(|source| Error::Io { path: shown.clone(), source })?;
+    crate::mapfile::parse(&String::from_utf8_lossy(&bytes)).map_err(|m| Error::invalid(&shown, m))
+}
+
 /// Point entities as empty nodes (key/values in extras); with `entity_lights`, light
-/// entities and sky-shader suns as KHR_lights_punctual lights.
-fn add_entities(scene: &mut Scene, ents: &[Entity], infos: &[ShaderInfo], opts: &Options, summary: &mut Summary) {
+/// entities and sky-shader suns as KHR_lights_punctual lights. With `source` (the
+/// entities of the map's `.map` source), the lights are the source's light entities
+/// (spot targets resolved among the source's entities) and the BSP's own light entities,
+/// if it kept any, are not converted twice.
+fn add_entities(scene: &mut Scene, ents: &[Entity], source: Option<&[Entity]>, infos: &[ShaderInfo], opts: &Options, summary: &mut Summary) {
     let mut children = Vec::new();
+    let entity_lights = opts.entity_lights || source.is_some();
     for (i, e) in ents.iter().enumerate() {
         let class = e.classname();
         if class == "worldspawn" || e.get("model").is_some_and(|m| m.starts_with('*')) {
+            continue;
+        }
+        if source.is_some() && class == "light" {
             continue;
         }
         let origin = e.vec3("origin").unwrap_or([0.0; 3]);
@@ -606,7 +672,7 @@ fn add_entities(scene: &mut Scene, ents: &[Entity], infos: &[ShaderInfo], opts: 
             extras: Some(entity_extras(e)),
             ..Default::default()
         };
-        if opts.entity_lights && class == "light" {
+        if entity_lights && class == "light" {
             match entity_light(e, ents, opts, i) {
                 Ok((light, rotation)) => {
                     scene.lights.push(light);
@@ -620,7 +686,25 @@ fn add_entities(scene: &mut Scene, ents: &[Entity], infos: &[ShaderInfo], opts: 
         }
         children.push(scene.add_node(node));
     }
-    if opts.entity_lights {
+    for (i, e) in source.unwrap_or(&[]).iter().enumerate().filter(|(_, e)| e.classname() == "light") {
+        let origin = e.vec3("origin").unwrap_or([0.0; 3]);
+        let mut node = scene::Node {
+            name: format!("light_{i}"),
+            translation: Some(units::position([origin[0] as f32, origin[1] as f32, origin[2] as f32], opts.scale)),
+            extras: Some(entity_extras(e)),
+            ..Default::default()
+        };
+        match entity_light(e, source.unwrap_or(&[]), opts, i) {
+            Ok((light, rotation)) => {
+                scene.lights.push(light);
+                node.light = Some(scene.lights.len() - 1);
+                node.rotation = rotation;
+                children.push(scene.add_node(node));
+            }
+            Err(w) => summary.warnings.push(format!("{} (in the .map source)", w)),
+        }
+    }
+    if entity_lights {
         let mut suns: Vec<crate::shader::Sun> = Vec::new();
         for s in infos.iter().filter_map(|i| i.sun) {
             if !suns.contains(&s) {
@@ -675,11 +759,17 @@ fn entity_light(e: &Entity, ents: &[Entity], opts: &Options, index: usize) -> Re
     let target = e.get("target").and_then(|t| ents.iter().find(|o| o.get("targetname") == Some(t)));
     let (kind, rotation) = match target.and_then(|t| t.vec3("origin")) {
         Some(to) => {
+            // q3map2's cone: radius (default 64) plus 16 units at the target's distance
+            // (64 when the target sits on the light), softened over its last 32 units.
             let d = [to[0] - origin[0], to[1] - origin[1], to[2] - origin[2]];
-            let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
-            let radius = e.number("radius").unwrap_or(64.0).max(1.0);
-            let outer = (radius / dist).atan().clamp(0.01, std::f64::consts::FRAC_PI_2) as f32;
-            (LightKind::Spot { inner: outer * 0.9, outer }, Some(units::quat_from_neg_z(units::direction(d))))
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let (d, dist) = if len > 0.0 { (d, len) } else { ([0.0, 0.0, -1.0], 64.0) };
+            let radius = e.number("radius").filter(|r| *r != 0.0).unwrap_or(64.0);
+            let radius_by_dist = ((radius + 16.0) / dist).max(1e-6);
+            let outer = radius_by_dist.atan().clamp(1e-3, std::f64::consts::FRAC_PI_2 - 1e-3);
+            let inner = (((radius + 16.0 - 32.0).max(0.0)) / dist).atan().min(outer * 0.999);
+            extras["q3_radius_by_dist"] = json!(radius_by_dist);
+            (LightKind::Spot { inner: inner as f32, outer: outer as f32 }, Some(units::quat_from_neg_z(units::direction(d))))
         }
         None => (LightKind::Point, None),
     };
@@ -687,3 +777,17 @@ fn entity_light(e: &Entity, ents: &[Entity], opts: &Options, index: usize) -> Re
     Ok((scene::Light { name, kind, color, intensity, range: None, extras: Some(extras) }, rotation))
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::light_gamma;
+
+    #[test]
+    fn gamma_comes_from_the_light_stage_only() {
+        assert_eq!(light_gamma("-meta -patchmeta; -vis; -light -fast -gamma 1.5 -samples 3"), Some(1.5));
+        assert_eq!(light_gamma("-meta; -vis; -light -fast"), None);
+        assert_eq!(light_gamma("-gamma 2; -light -fast"), None, "another stage's switch");
+        assert_eq!(light_gamma("-light -gamma x"), None);
+        assert_eq!(light_gamma("-light -gamma 1e9"), None);
+    }
+}

@@ -54,6 +54,10 @@ pub struct Material {
     pub double_sided: bool,
     /// Lightmap atlas texture, referenced as occlusion on TEXCOORD_1.
     pub lightmap_texture: Option<usize>,
+    /// Emission: linear colour (largest channel 1) and radiance, W/(m^2 sr) in the
+    /// radiometric convention of CONVENTIONS.md (written as `emissiveFactor` and
+    /// `KHR_materials_emissive_strength`).
+    pub emissive: Option<([f32; 3], f32)>,
     /// JSON object stored as the material's extras.
     pub extras: Value,
 }

@@ -78,7 +78,18 @@ pub struct ShaderDef {
     pub sky: bool,
     pub fog: bool,
     pub sun: Option<Sun>,
+    /// `q3map_surfacelight`: q3map2's emission value.
     pub surface_light: Option<f64>,
+    /// `q3map_lightImage`: the image whose average colour tints the surface light.
+    pub light_image: Option<String>,
+    /// `q3map_lightRGB`: an explicit surface-light colour.
+    pub light_rgb: Option<[f64; 3]>,
+    /// `q3map_lightSubdivide`: largest extent of one emitting patch, Quake units.
+    pub light_subdivide: Option<f64>,
+    /// `q3map_backsplash <percent> <distance>`: as a fraction and Quake units.
+    pub backsplash: Option<(f64, f64)>,
+    /// `q3map_skyLight <value> <iterations>` (a shader may carry several).
+    pub sky_lights: Vec<(f64, u32)>,
 }
 
 impl ShaderDef {
@@ -271,6 +282,25 @@ pub fn parse(text: &str) -> Parsed {
                     "skyparms" => def.sky = true,
                     "fogparms" => def.fog = true,
                     "q3map_surfacelight" => def.surface_light = num(0),
+                    "q3map_lightimage" => def.light_image = args.first().cloned(),
+                    "q3map_lightrgb" => {
+                        if let (Some(r), Some(g), Some(b)) = (num(0), num(1), num(2)) {
+                            def.light_rgb = Some([r, g, b]);
+                        }
+                    }
+                    "q3map_lightsubdivide" => def.light_subdivide = num(0).filter(|v| *v > 0.0),
+                    "q3map_backsplash" => {
+                        if let (Some(p), Some(d)) = (num(0), num(1)) {
+                            def.backsplash = Some((p * 0.01, d));
+                        }
+                    }
+                    "q3map_skylight" => {
+                        if let (Some(v), Some(it)) = (num(0), num(1)) {
+                            if v > 0.0 && it >= 2.0 && it <= 1024.0 {
+                                def.sky_lights.push((v, it as u32));
+                            }
+                        }
+                    }
                     "q3map_sun" | "q3map_sunext" => {
                         if let (Some(r), Some(g), Some(b), Some(intensity), Some(degrees), Some(elevation)) =
                             (num(0), num(1), num(2), num(3), num(4), num(5))
@@ -370,6 +400,25 @@ textures/skies/sky
 }
 textures/anim/x { { animMap 5 textures/a1.tga textures/a2.tga } }
 "#;
+
+    #[test]
+    fn reads_lighting_directives() {
+        let p = parse(
+            "textures/l/panel { q3map_surfacelight 1000\n q3map_lightimage textures/l/glow.tga\n q3map_lightSubdivide 32\n q3map_backsplash 0 0\n }\n\
+             textures/l/rgb { q3map_lightRGB 1 0.5 0\n q3map_surfacelight 50 }\n\
+             textures/s/sky { surfaceparm sky\n q3map_skyLight 180 8\n q3map_skylight 10 1\n q3map_sun 1 1 1 32 90 90 }",
+        );
+        assert!(p.problems.is_empty(), "{:?}", p.problems);
+        let panel = &p.shaders[0];
+        assert_eq!(panel.surface_light, Some(1000.0));
+        assert_eq!(panel.light_image.as_deref(), Some("textures/l/glow.tga"));
+        assert_eq!(panel.light_subdivide, Some(32.0));
+        assert_eq!(panel.backsplash, Some((0.0, 0.0)));
+        assert_eq!(p.shaders[1].light_rgb, Some([1.0, 0.5, 0.0]));
+        let sky = &p.shaders[2];
+        assert_eq!(sky.sky_lights, vec![(180.0, 8)], "one iteration is no sky light (q3map2 needs two)");
+        assert_eq!(sky.sun.unwrap().elevation, 90.0);
+    }
 
     #[test]
     fn reads_material_directives() {

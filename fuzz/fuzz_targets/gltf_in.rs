@@ -2,7 +2,7 @@
 //! external URIs must be refused, never read).
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use q3gltf_relight::gltf_in::{read_slice, Limits};
+use q3gltf_relight::io::gltf_in::{read_slice, Limits};
 
 #[global_allocator]
 static ALLOC: q3gltf_fuzz::Guard = q3gltf_fuzz::Guard;

@@ -1,25 +1,30 @@
-//! The two places the heavy kernels run: the CPU (rayon; also the reference) and wgpu
-//! (`gpu` module). Both hold the problem and the BVH, uploaded or borrowed once.
+//! The two places the light kernels run: the CPU (rayon; also the reference) and wgpu
+//! ([`crate::gpu`]). Both hold the rows and the BVH, uploaded or borrowed once. A backend
+//! traces shadow rays and evaluates the point and spot lights ([`crate::model::lights`]),
+//! the one part of the model whose cost grows with lights x rows; the rest of the model
+//! runs on the CPU in f64 ([`crate::model`]).
 
 use glam::Vec3;
 
 use crate::error::Result;
-
-use crate::bvh::Bvh;
-use crate::model::{self, Eval, Light, Problem, Terms};
-use crate::visibility::{self, Visibility};
+use crate::model::lights::{self, Light, LightGrad};
+use crate::rows::Rows;
+use crate::trace::bvh::Bvh;
+use crate::trace::visibility::{self, Visibility};
 
 pub trait Backend {
-    /// "cpu" or "wgpu (adapter name, backend)".
+    /// "cpu (N threads)" or "wgpu (adapter name, backend)".
     fn name(&self) -> String;
-    /// Visibility bits of each light position from every problem vertex.
-    fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>>;
-    /// Objective, error and gradient.
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval>;
+    /// Visibility bits of each light position from every row within its reach (m).
+    fn trace(&mut self, lights: &[(Vec3, f32)]) -> Result<Vec<Vec<u32>>>;
+    /// The lights' irradiance at every row, W/m^2 per channel.
+    fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>>;
+    /// The lights' gradients for `rho_ic = dF/dE_ic`.
+    fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>>;
 }
 
 pub struct Cpu<'a> {
-    pub pb: &'a Problem,
+    pub rows: &'a Rows,
     pub bvh: &'a Bvh,
 }
 
@@ -27,10 +32,13 @@ impl Backend for Cpu<'_> {
     fn name(&self) -> String {
         format!("cpu ({} threads)", rayon::current_num_threads())
     }
-    fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
-        Ok(lights.iter().map(|&p| visibility::trace_light(self.bvh, self.pb, p)).collect())
+    fn trace(&mut self, lights: &[(Vec3, f32)]) -> Result<Vec<Vec<u32>>> {
+        Ok(lights.iter().map(|&(p, r)| visibility::trace_light(self.bvh, self.rows, p, r)).collect())
     }
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
-        Ok(model::evaluate(self.pb, vis, lights, terms))
+    fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
+        Ok(lights::irradiance(self.rows, vis, lights))
+    }
+    fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
+        Ok(lights::gradient(self.rows, vis, lights, rho))
     }
 }

@@ -14,11 +14,12 @@
 use glam::Vec3;
 
 use crate::backend::Cpu;
-use crate::bvh::Bvh;
 use crate::fit::{Algorithm, Fitter, ParamSet, Phase};
-use crate::model::{geometry_term, radiance, Light, Problem, Sun};
+use crate::model::{lights, Bases, Light, Model, Sun};
+use crate::rows::Rows;
 use crate::scene::Mesh;
-use crate::visibility;
+use crate::trace::bvh::Bvh;
+use crate::trace::visibility;
 
 /// The 14 directions of the free-space test (6 axes, 8 diagonals).
 fn directions() -> Vec<Vec3> {
@@ -61,7 +62,7 @@ pub fn grid(n: usize, lo: Vec3, hi: Vec3) -> Vec<Light> {
         for k in 0..n {
             let fx = (i as f32 + 0.5) / n as f32;
             let fz = (k as f32 + 0.5) / n as f32;
-            v.push(Light { pos: Vec3::new(lo.x + fx * (hi.x - lo.x), y, lo.z + fz * (hi.z - lo.z)), rgb: [1.0; 3] });
+            v.push(Light::point(Vec3::new(lo.x + fx * (hi.x - lo.x), y, lo.z + fz * (hi.z - lo.z)), [1.0; 3]));
         }
     }
     v
@@ -79,31 +80,37 @@ pub struct AutoStats {
     pub history: Vec<crate::fit::IterRecord>,
 }
 
-/// Greedy placement on a subsample; `start` are lights kept from the input (locked ones).
+/// Greedy placement on a subsample of the rows. `model` is the model the lights join:
+/// its terms (sun, sky, surfaces, ambient, ...) and the lights kept from the input
+/// (`locked` says which are the user's locked ones); new lights are placed for what it
+/// leaves unexplained. `start_time` is the clock of the run, for the iteration records.
 #[allow(clippy::too_many_arguments)]
-/// `start_time` is the clock of the run, for the iteration records.
-pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Vec3, start: &[(Light, bool)], globals: crate::fit::Globals, max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Vec<Light>, AutoStats) {
-    let sub = pb.subsample(sample, seed);
+pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Vec3, model: &Model, locked: &[bool], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Model, AutoStats) {
+    let (sub, take) = rows.subsample(sample, seed);
+    let sub_bases = bases.subset(&take);
     let diag = (hi - lo).length().max(1e-3);
-    let mut backend = Cpu { pb: &sub, bvh };
-    let mut fit = Fitter::new(&sub, bvh, &mut backend, lo, hi);
+    let mut backend = Cpu { rows: &sub, bvh };
+    let mut fit = Fitter::new(&sub, &sub_bases, bvh, &mut backend, lo, hi);
     fit.start = start_time;
     fit.deadline = deadline;
-    // The global terms the model starts with (the indirect term): lights are placed for
-    // what they leave unexplained.
-    fit.globals = globals;
-    fit.sky = sky.to_vec();
-    for (l, locked) in start {
-        fit.add_light(*l, *locked);
+    fit.model = Model { lights: Vec::new(), ..model.clone() };
+    for (l, &k) in model.lights.iter().zip(locked) {
+        fit.add_light(*l, k);
     }
     let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new(), history: Vec::new() };
-    let mut err = if fit.lights.is_empty() && fit.globals == crate::fit::Globals::default() { 1.0 } else { fit.fit_intensities() };
+    let mut err = fit.fit_linear();
+    if !err.is_finite() {
+        err = 1.0;
+    }
     let spacing = 0.05 * diag;
-    while fit.lights.len() < max_lights && !fit.out_of_time() {
-        let x = radiance(&sub, &fit.vis, &fit.lights, fit.globals.terms());
+    while fit.model.lights.len() < max_lights && !fit.out_of_time() {
+        let x = match crate::model::radiance(&fit.model, &sub, &sub_bases, &fit.vis, &mut Cpu { rows: &sub, bvh }) {
+            Ok(x) => x,
+            Err(_) => break,
+        };
         let mut order: Vec<(f64, usize)> = (0..sub.len())
             .map(|i| {
-                let r: f64 = (0..3).map(|c| sub.weight[i][c] as f64 * ((sub.target[i][c] - x[i][c]).max(0.0) as f64)).sum();
+                let r: f64 = (0..3).map(|c| sub.weight[i][c] as f64 * (sub.mid(i, c) - x[i][c]).max(0.0)).sum();
                 (r * sub.area[i] as f64, i)
             })
             .filter(|(r, _)| *r > 0.0)
@@ -121,7 +128,7 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
         let mut cands = Vec::new();
         for &i in &picked {
             let (x0, n) = (sub.pos[i], sub.normal[i]);
-            let h = bvh.first_hit(x0 + n * sub.ray_offset, n * (0.3 * diag), 1.0).map_or(0.3 * diag, |(t, _)| t * 0.3 * diag);
+            let h = bvh.first_hit(x0 + n * sub.sampling.ray_offset, n * (0.3 * diag), 1.0).map_or(0.3 * diag, |(t, _)| t * 0.3 * diag);
             for f in [0.2f32, 0.45, 0.7] {
                 let p = x0 + n * (f * h).max(2.0 * fit.min_dist);
                 if bvh.nearest(p).is_some_and(|(d, _)| d >= fit.min_dist) && free_space(mesh, bvh, p, 2.0 * diag) {
@@ -133,23 +140,28 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
             break;
         }
         stats.candidates_tried += cands.len();
-        // Score: error removed by the best non-negative intensity per channel.
+        // Score: error removed by the best non-negative intensity per channel (the
+        // candidate's light through the dirt factor; filter and bounce are not on the
+        // subsample).
+        let dirt = if fit.model.dirt { sub_bases.dirt.as_deref() } else { None };
         let scored: Vec<(f64, Vec3, [f32; 3])> = {
             use rayon::prelude::*;
             cands
                 .par_iter()
                 .map(|&p| {
-                    let bits = visibility::trace_light(bvh, &sub, p);
+                    let bits = visibility::trace_light(bvh, &sub, p, f32::INFINITY);
                     let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
+                    let probe = Light::point(p, [1e30; 3]);
                     for i in 0..sub.len() {
                         if bits[i >> 5] >> (i & 31) & 1 == 0 {
                             continue;
                         }
-                        let (g, _) = geometry_term(sub.pos[i], sub.normal[i], p, sub.eps);
+                        // The falloff cut is left out: the intensity is not known yet.
+                        let g = lights::term(&sub, i, &probe).g as f64 * dirt.map_or(1.0, |d| d[i] as f64);
                         for c in 0..3 {
                             let w = sub.area[i] as f64 * sub.weight[i][c] as f64;
-                            let b = sub.albedo[i][c] as f64 * g as f64 / std::f64::consts::PI;
-                            h[c] += w * b * (sub.target[i][c] - x[i][c]) as f64;
+                            let b = sub.albedo[i][c] as f64 * g / std::f64::consts::PI;
+                            h[c] += w * b * (sub.mid(i, c) - x[i][c]);
                             g2[c] += w * b * b;
                         }
                     }
@@ -164,20 +176,20 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
             break;
         }
         let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
-        let saved = (fit.lights.clone(), fit.locked.clone(), fit.vis.clone());
-        fit.add_light(Light { pos: best.1, rgb: best.2.map(|c| c.max(floor).max(1e-9)) }, false);
-        let e0 = fit.fit_intensities();
-        let placed = (fit.lights.clone(), fit.vis.clone());
+        let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
+        fit.add_light(Light::point(best.1, best.2.map(|c| c.max(floor).max(1e-9))), false);
+        let e0 = fit.fit_linear();
+        let placed = (fit.model.clone(), fit.vis.clone());
         fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
-        let mut e = fit.fit_intensities();
+        let mut e = fit.fit_linear();
         if !(e <= e0) {
             // The short refinement made things worse (a light slid behind a wall): undo it.
-            (fit.lights, fit.vis) = placed;
+            (fit.model, fit.vis) = placed;
             e = e0;
         }
         stats.errors.push(e);
         if err - e < min_gain {
-            (fit.lights, fit.locked, fit.vis) = saved;
+            (fit.model, fit.locked, fit.vis) = saved;
             stats.errors.pop();
             break;
         }
@@ -185,22 +197,28 @@ pub fn auto(mesh: &Mesh, pb: &Problem, bvh: &Bvh, sky: &[bool], lo: Vec3, hi: Ve
         err = e;
     }
     stats.history = std::mem::take(&mut fit.history);
-    (fit.lights.clone(), stats)
+    (fit.model.clone(), stats)
 }
+
+/// The fine grid [`sun_search`] scores around a known direction: this many steps of
+/// [`REFINE_STEP_DEG`] each way in elevation and azimuth.
+const REFINE_CELLS: i32 = 8;
+const REFINE_STEP_DEG: f64 = 0.25;
 
 /// The sun direction (and irradiance) that best explains what the model `base` leaves of
 /// the target on `sub`. Without `from`: a coarse search over the upper hemisphere (every
 /// 10 degrees of elevation, 15 of azimuth, plus `extra` directions such as the input's
 /// sun), then a local pattern search halving its step from 5 degrees down to 0.05; with
-/// `from`, only the local search, from there and from 1 degree. Each direction is scored
+/// `from`, every direction of a 0.25-degree grid within 2 degrees of it, then the local
+/// search from 0.25 degrees. Each direction is scored
 /// by the error its best non-negative irradiance removes (per channel, exact). The
 /// gradient cannot do this part: it sees the cosine, not the shadows' edges. `None` when
 /// no direction lowers the error.
-pub fn sun_search(sub: &Problem, bvh: &Bvh, sky: &[bool], base: &[[f32; 3]], extra: &[Vec3], from: Option<Vec3>) -> Option<(Sun, f64)> {
-    use crate::fit::{sun_angles, sun_direction};
+pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra: &[Vec3], from: Option<Vec3>) -> Option<(Sun, f64)> {
+    use crate::fit::{angles as sun_angles, direction as sun_direction};
     use rayon::prelude::*;
     let score = |w: Vec3| -> (f64, [f32; 3]) {
-        let bits = crate::visibility::trace_sun(bvh, sub, w, sky);
+        let bits = crate::trace::visibility::trace_sun(bvh, sub, w, sky);
         let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
         for i in 0..sub.len() {
             if bits[i >> 5] >> (i & 31) & 1 == 0 {
@@ -210,7 +228,7 @@ pub fn sun_search(sub: &Problem, bvh: &Bvh, sky: &[bool], base: &[[f32; 3]], ext
             for c in 0..3 {
                 let wt = sub.area[i] as f64 * sub.weight[i][c] as f64;
                 let b = sub.albedo[i][c] as f64 * cos / std::f64::consts::PI;
-                h[c] += wt * b * (sub.target[i][c] - base[i][c]) as f64;
+                h[c] += wt * b * (sub.mid(i, c) - base[i][c]);
                 g2[c] += wt * b * b;
             }
         }
@@ -229,7 +247,21 @@ pub fn sun_search(sub: &Problem, bvh: &Bvh, sky: &[bool], base: &[[f32; 3]], ext
     cands.extend(extra.iter().chain(from.as_ref()).map(|&w| sun_angles(w)));
     let scored: Vec<(f64, (f64, f64))> = cands.par_iter().map(|&(t, p)| (score(sun_direction(t, p).0).0, (t, p))).collect();
     let (mut best_s, (mut t, mut p)) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0))?;
-    let mut step = if from.is_some() { 1f64 } else { 5.0 }.to_radians();
+    // The score is piecewise constant where the lit rows share a normal (the cosine
+    // cancels in the least-squares fit; only the set of sunlit rows changes), so a pattern
+    // search stalls on plateaus. From a known direction: every direction of a fine grid
+    // around it first.
+    if from.is_some() {
+        let fine: Vec<(f64, f64)> = (-REFINE_CELLS..=REFINE_CELLS)
+            .flat_map(|a| (-REFINE_CELLS..=REFINE_CELLS).map(move |b| (a, b)))
+            .map(|(a, b)| ((t + (a as f64 * REFINE_STEP_DEG).to_radians()).clamp(0.0, std::f64::consts::FRAC_PI_2), p + (b as f64 * REFINE_STEP_DEG).to_radians()))
+            .collect();
+        let local: Vec<(f64, (f64, f64))> = fine.par_iter().map(|&(a, b)| (score(sun_direction(a, b).0).0, (a, b))).collect();
+        if let Some((s, at)) = local.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)).filter(|x| x.0 > best_s) {
+            (best_s, (t, p)) = (s, at);
+        }
+    }
+    let mut step = if from.is_some() { REFINE_STEP_DEG } else { 5.0 }.to_radians();
     while step > 0.05f64.to_radians() {
         let around: Vec<(f64, f64)> = [(-1.0, 0.0), (1.0, 0.0), (0.0, -1.0), (0.0, 1.0), (-1.0, -1.0), (1.0, 1.0), (-1.0, 1.0), (1.0, -1.0)]
             .iter()

@@ -1,35 +1,34 @@
-//! Stage two of q3gltf: estimate a small set of point lights whose direct lighting
-//! reproduces the baked lightmaps of a glTF written by `q3gltf convert` (or by Blender
-//! from it), and write the scene back with `KHR_lights_punctual`.
+//! Stage two of q3gltf: estimate the light sources whose lighting reproduces the baked
+//! lightmaps of a glTF written by `q3gltf convert` (or by Blender from it), with a forward
+//! model of how q3map2 made them, and write the scene back with `KHR_lights_punctual`
+//! lights and emissive materials.
 //!
-//! Data flow: [`gltf_in`] reads the scene into world space ([`scene`]); [`subdivide`]
-//! refines it to lightmap resolution; [`target`] projects `albedo x lightmap` onto the
-//! vertices; [`bvh`] is built once; [`fit`] drives the optimisers ([`optim`]) over the
-//! forward model ([`model`], visibility cached in [`visibility`]) on a [`backend`];
-//! [`init`] chooses the starting lights; [`lights_out`] writes the result and [`report`]
-//! the numbers; [`ply`] writes the fitted mesh for inspection.
+//! Data flow (ARCHITECTURE.md has the codemap): [`io::gltf_in`] reads the scene into world
+//! space ([`scene`]); [`subdivide`] refines it for the vertex target; [`rows`] builds the
+//! objective's rows ([`rows::luxel`] or the thesis's [`rows::projection`]); [`trace`]
+//! builds the BVH and caches visibility; [`model`] is the forward model, one module per
+//! term, with its gradient; [`fit`] drives the optimisers ([`optim`]) in phases on a
+//! [`backend`] (the CPU or [`gpu`]); [`init`] places the starting lights and searches the
+//! sun; [`pipeline`] runs the stages; [`io::lights_out`] writes the result and [`report`]
+//! the numbers; [`probe`] evaluates the model at one point.
 
 pub mod backend;
-pub mod bvh;
 pub mod error;
 pub mod fit;
-pub mod gltf_in;
+pub mod gather;
 pub mod gpu;
-pub mod indirect;
 pub mod init;
-pub mod lights_out;
-pub mod luxel;
+pub mod io;
 pub mod model;
 pub mod optim;
 pub mod pipeline;
-pub mod ply;
 pub mod probe;
 pub mod report;
+pub mod rows;
 pub mod scene;
 pub mod schemes;
 pub mod subdivide;
-pub mod target;
 #[cfg(test)]
 pub(crate) mod testutil;
 pub mod texel;
-pub mod visibility;
+pub mod trace;

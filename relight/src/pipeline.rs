@@ -1,7 +1,8 @@
-//! The whole relight: read, subdivide, build the target (luxel rows or the vertex
-//! projection), build the BVH, gather the indirect light, choose the starting lights, run
-//! the scheme's phases, prune and merge, decide on the indirect and ambient terms, write
-//! the glTF, and gather the report.
+//! The whole relight, as a list of stages: read, subdivide, choose the backend, build the
+//! BVH and the rows, read the compile's settings, trace the model's bases, upload, start
+//! (the map's own emitters, then the lights: the file's, a grid, or placed), fit the
+//! phases, decide which terms the data needs, prune and merge, refine the sun, polish,
+//! write the glTF, gather the report.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -11,16 +12,18 @@ use serde::Serialize;
 use serde_json::json;
 
 use crate::backend::{Backend, Cpu};
-use crate::bvh::Bvh;
 use crate::error::{Error, Result};
 use crate::fit::{Fitter, IterRecord, PhaseSummary};
-use crate::gltf_in;
 use crate::init;
-use crate::lights_out::{self, OutLight, LM_PER_W};
-use crate::model::{Light, Problem, Sun};
+use crate::io::gltf_in;
+use crate::io::lights_out::{self, OutLight, OutSpot, LM_PER_W};
+use crate::model::{self, Bases, Light, Model, Spot, Sun};
+use crate::rows::projection::{self, TargetStats};
+use crate::rows::{luxel, Rows};
+use crate::scene::{Lighting, Scene};
 use crate::schemes;
 use crate::subdivide::{self, Bound};
-use crate::target::{self, TargetStats};
+use crate::trace::bvh::Bvh;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Subdivide {
@@ -31,7 +34,7 @@ pub enum Subdivide {
     Meters(f32),
 }
 
-/// Where the objective's rows are: see [`crate::luxel`] and [`crate::target`].
+/// Where the objective's rows are: see [`crate::rows`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum TargetSpace {
@@ -48,10 +51,26 @@ pub enum Init {
     Input,
 }
 
-/// Whether the model has the indirect term ([`crate::indirect`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What the fit may change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FitMode {
+    /// Everything (the default).
+    All,
+    /// Only the compile's global terms: one scale per kind of emitter per channel (as
+    /// q3map2's `-pointscale`, `-skyscale`, `-areascale`), ambient, minlight, bounce scale,
+    /// dirt and filter on or off; the lights and the map's emitters otherwise stay as the
+    /// file has them (positions, directions, proportions). The truth harness: how well a
+    /// map's own sources explain its lightmaps.
+    Globals,
+}
+
+/// Whether the model has an optional term.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Optional {
-    /// Only when it lowers the relative error by at least [`TERM_GAIN`].
+    /// As the recorded compile says; else only where it lowers the relative error by at
+    /// least [`TERM_GAIN`].
     Auto,
     Off,
     On,
@@ -60,9 +79,15 @@ pub enum Optional {
 /// Rows of the subsample on which `--init auto` places lights (every k-th row).
 pub const AUTO_SAMPLE_ROWS: usize = 20_000;
 
-/// A global term (indirect, ambient) stays in the model with `auto` only when it lowers
-/// the relative error by at least this much (absolute).
+/// An optional term stays in the model with `auto` only when it lowers the relative error
+/// by at least this much (absolute).
 pub const TERM_GAIN: f64 = 0.005;
+
+/// Passes of bounced light when the compile's `-bounce N` is not recorded.
+pub const DEFAULT_BOUNCES: usize = 8;
+
+/// Rounds of sun search and polish at the end of a fit with a sun.
+const SUN_ROUNDS: usize = 2;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BackendChoice {
@@ -76,11 +101,11 @@ pub struct Options {
     pub input: PathBuf,
     pub output: PathBuf,
     pub target: TargetSpace,
-    /// `None`: `Lightmap` for the vertex target, `Off` for the luxel target (whose
-    /// lightmapped rows do not depend on the mesh's vertices).
+    /// `None`: `Lightmap` for the vertex target, `Off` for the luxel target.
     pub subdivide: Option<Subdivide>,
     pub max_vertices: usize,
     pub init: Init,
+    pub fit: FitMode,
     pub scheme: String,
     pub max_lights: usize,
     /// Caps every phase's iterations.
@@ -88,12 +113,21 @@ pub struct Options {
     pub time_limit: Option<Duration>,
     pub backend: BackendChoice,
     pub seed: u64,
-    pub indirect: Optional,
-    /// Gather rays per row for the indirect term.
-    pub indirect_rays: usize,
-    /// Whether the model has a sun (`auto`: searched when the scene has sky surfaces or a
-    /// directional light, kept where it lowers the error).
+    /// Bounced light of the model's own emitters ([`model::bounce`]).
+    pub bounce: Optional,
+    /// Rays per row for the bounce operator.
+    pub bounce_rays: usize,
+    /// A sun (directional light).
     pub sun: Optional,
+    /// The sky light of the map's sky shaders.
+    pub sky: Optional,
+    /// The map's surface lights (emitting shaders).
+    pub surfaces: Optional,
+    /// q3map2's `-dirt` and `-filter`.
+    pub dirt: Optional,
+    pub filter: Optional,
+    /// Write every row's data and the final model there as CSV.
+    pub dump_rows: Option<PathBuf>,
 }
 
 impl Default for Options {
@@ -105,15 +139,21 @@ impl Default for Options {
             subdivide: None,
             max_vertices: 1_500_000,
             init: Init::Auto,
+            fit: FitMode::All,
             scheme: "default".into(),
             max_lights: 32,
             max_iterations: None,
             time_limit: None,
             backend: BackendChoice::Auto,
             seed: 1,
-            indirect: Optional::Auto,
-            indirect_rays: 16,
+            bounce: Optional::Auto,
+            bounce_rays: 16,
             sun: Optional::Auto,
+            sky: Optional::Auto,
+            surfaces: Optional::Auto,
+            dirt: Optional::Auto,
+            filter: Optional::Auto,
+            dump_rows: None,
         }
     }
 }
@@ -146,13 +186,53 @@ pub struct SunReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct LightReport {
     pub name: String,
+    pub kind: &'static str,
     pub position_m: [f64; 3],
     pub intensity_cd: f64,
     pub color: [f64; 3],
+    /// A spot's unit axis and cone half-angle, degrees.
+    pub spot_axis: Option<[f64; 3]>,
+    pub spot_angle_deg: Option<f64>,
     pub range_m: f64,
     /// Share of the model's area-weighted radiance that comes from this light.
     pub energy_share: f64,
     pub locked: bool,
+}
+
+/// A surface-light group as fitted.
+#[derive(Debug, Clone, Serialize)]
+pub struct SurfaceReport {
+    pub shader: String,
+    pub rows_reached: usize,
+    pub patches: usize,
+    pub area_m2: f64,
+    /// The radiance the shader's own value stands for, and the fitted one, W/(m^2 sr).
+    pub source_radiance: [f32; 3],
+    pub radiance: Option<[f32; 3]>,
+}
+
+/// One term's decision: whether it stayed, and the error with and without it.
+#[derive(Debug, Clone, Serialize)]
+pub struct TermReport {
+    pub term: String,
+    pub kept: bool,
+    pub rel_error_without: f64,
+    pub rel_error_with: f64,
+    pub note: String,
+}
+
+/// The residual of one material: where the model does not explain the data.
+#[derive(Debug, Clone, Serialize)]
+pub struct MaterialResidual {
+    pub material: String,
+    pub rows: usize,
+    /// Share of the total squared residual.
+    pub residual_share: f64,
+    /// The material's own relative error.
+    pub rel_error: f64,
+    /// Mean data and model radiance (area-weighted), per channel.
+    pub mean_data: [f64; 3],
+    pub mean_model: [f64; 3],
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -165,27 +245,35 @@ pub struct Report {
     pub target_backend: String,
     pub scheme: String,
     pub init: String,
+    pub fit: FitMode,
     pub vertices_input: usize,
     pub triangles_input: usize,
     pub subdivision: Option<subdivide::Stats>,
     pub target_space: TargetSpace,
-    /// The per-vertex projection (with the luxel target: of the vertex-lit materials only).
     pub target: TargetStats,
-    /// The luxel rows, with the luxel target.
-    pub luxel: Option<crate::luxel::LuxelStats>,
-    /// Rows of the objective (vertices or luxels).
+    pub luxel: Option<luxel::LuxelStats>,
     pub problem_rows: usize,
+    /// The compile's recorded command line, when the map has one.
+    pub compile_cmdline: Option<String>,
+    /// How the compile's settings were chosen.
+    pub compile_note: String,
     pub rel_error_initial: f64,
     pub rel_error_final: f64,
     pub lights: Vec<LightReport>,
-    pub ambient: Option<[f32; 3]>,
-    pub ambient_note: String,
-    /// Fitted scale `k_c` of the gathered indirect radiance, when the model kept it.
-    pub indirect: Option<[f32; 3]>,
-    pub indirect_note: String,
-    pub indirect_gather: Option<crate::indirect::GatherStats>,
     pub sun: Option<SunReport>,
-    pub sun_note: String,
+    pub sky: Option<[f32; 3]>,
+    pub surfaces: Vec<SurfaceReport>,
+    pub ambient: Option<[f32; 3]>,
+    pub minlight: Option<[f32; 3]>,
+    /// Scale of each pass of bounced light, and the passes.
+    pub bounce: Option<[f32; 3]>,
+    pub bounces: usize,
+    pub dirt: bool,
+    pub filter: bool,
+    /// The decision on every optional term.
+    pub terms: Vec<TermReport>,
+    /// Where the residual is, by material (largest first).
+    pub residual_by_material: Vec<MaterialResidual>,
     pub pruned: usize,
     pub merged: usize,
     pub auto: Option<init::AutoStats>,
@@ -234,18 +322,18 @@ pub fn choose_backend(choice: BackendChoice) -> Result<(Plan, String)> {
 
 /// The target projection on the chosen device; the CPU when the textures do not fit the
 /// adapter's limits (the note says so).
-fn project(plan: &Plan, scene: &crate::scene::Scene) -> Result<(target::Target, TargetStats, String)> {
+fn project(plan: &Plan, scene: &Scene) -> Result<(projection::Target, TargetStats, String)> {
     if let Plan::Wgpu(ctx) = plan {
         let bytes = crate::gpu::texture_bytes(scene);
         if bytes <= ctx.max_binding() {
             let (sums, samples) = ctx.target_sums(scene)?;
-            let (tg, st) = target::gather(scene, &sums, samples);
+            let (tg, st) = projection::gather(scene, &sums, samples);
             return Ok((tg, st, "wgpu".into()));
         }
-        let (tg, st) = target::project_cpu(scene);
+        let (tg, st) = projection::project_cpu(scene);
         return Ok((tg, st, format!("cpu (the textures, {} MB, exceed the adapter's storage binding limit)", bytes >> 20)));
     }
-    let (tg, st) = target::project_cpu(scene);
+    let (tg, st) = projection::project_cpu(scene);
     Ok((tg, st, "cpu".into()))
 }
 
@@ -262,15 +350,167 @@ fn bound_of(opts: &Options) -> Option<Bound> {
 }
 
 /// Reads `opts.input`, subdivides it as `run` would, and writes the mesh to `path` as PLY
-/// ([`crate::ply`]); nothing is fitted. Returns the subdivision's statistics.
+/// ([`crate::io::ply`]); nothing is fitted. Returns the subdivision's statistics.
 pub fn write_mesh(opts: &Options, path: &std::path::Path) -> Result<Option<subdivide::Stats>> {
     if q3gltf_convert::output::same_file(path, &opts.input) {
         return Err(Error::Usage(format!("{}: the mesh would overwrite the input", path.display())));
     }
     let mut scene = gltf_in::read(&opts.input)?;
     let stats = bound_of(opts).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
-    crate::ply::write(&scene, path)?;
+    crate::io::ply::write(&scene, path)?;
     Ok(stats)
+}
+
+/// The rows of the objective and their statistics.
+fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(Rows, TargetStats, Option<luxel::LuxelStats>, String)> {
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length();
+    let ob = scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(2, |m| m.overbright_bits);
+    Ok(match opts.target {
+        TargetSpace::Vertex => {
+            let (tg, tstats, target_backend) = project(plan, scene)?;
+            (projection::rows(&scene.mesh, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob)), tstats, None, target_backend)
+        }
+        TargetSpace::Luxel => {
+            // The per-vertex projection is still needed for vertex-lit materials' rows.
+            let vertex_lit = scene.materials.iter().any(|m| m.lighting == Lighting::Vertex);
+            let (tg, tstats, backend) = if vertex_lit { project(plan, scene)? } else { (projection::Target::empty(scene.mesh.positions.len()), TargetStats::default(), "none needed".into()) };
+            let mut lx = luxel::rows(scene, &tg, diag);
+            luxel::drop_buried(&mut lx, scene, bvh);
+            (lx.rows, tstats, Some(lx.stats), format!("luxel rows on the cpu; vertex-lit projection: {backend}"))
+        }
+    })
+}
+
+/// Which optional terms the model considers, and with which fixed settings.
+#[derive(Debug, Clone)]
+struct Plan2 {
+    sun: Optional,
+    sky: Optional,
+    surfaces: Optional,
+    bounce: Optional,
+    bounces: usize,
+    dirt: Optional,
+    filter: Optional,
+    /// q3map2's `-fast` for area lights.
+    fast_area: bool,
+}
+
+/// The compile's settings where recorded (`_q3map2_cmdline`), the options otherwise.
+fn plan_terms(opts: &Options, scene: &Scene) -> (Plan2, String) {
+    let c = &scene.compile;
+    let recorded = c.cmdline.is_some();
+    let from_record = |opt: Optional, on: bool| match opt {
+        Optional::Auto if recorded => {
+            if on {
+                Optional::On
+            } else {
+                Optional::Off
+            }
+        }
+        o => o,
+    };
+    let bounces = c.switch("-bounce").and_then(|v| v.parse::<usize>().ok()).unwrap_or(DEFAULT_BOUNCES).min(64);
+    let sky_surfaces = scene.materials.iter().any(|m| m.sky);
+    let p = Plan2 {
+        sun: if !sky_surfaces && scene.suns.is_empty() && opts.sun == Optional::Auto { Optional::Off } else { opts.sun },
+        sky: if !scene.materials.iter().any(|m| !m.sky_lights.is_empty()) && opts.sky == Optional::Auto { Optional::Off } else { opts.sky },
+        surfaces: if !scene.materials.iter().any(|m| m.emitter.is_some()) { Optional::Off } else { opts.surfaces },
+        bounce: from_record(opts.bounce, c.has("-bounce")),
+        bounces,
+        // q3map2's switch is `-dirty`; `-dirt`, which many OpenArena maps record, is not one
+        // (q3map2 warns "Unknown argument" and lights without dirt).
+        dirt: from_record(opts.dirt, c.has("-dirty")),
+        filter: from_record(opts.filter, c.has("-filter")),
+        fast_area: c.has("-fast"),
+    };
+    let note = match &c.cmdline {
+        Some(l) => format!("recorded compile: {l}"),
+        None => "no recorded compile: dirt, filter and bounce decided by the data".into(),
+    };
+    (p, note)
+}
+
+/// Traces what the model needs of the geometry for the terms `plan` considers; `st`
+/// records each one's time.
+fn build_bases(scene: &Scene, rows: &Rows, bvh: &Bvh, plan: &Plan2, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
+    let sky_triangles: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
+    let sky = (plan.sky != Optional::Off).then(|| {
+        let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
+        model::sky::basis(rows, bvh, &sky_triangles, &model::sky::directions(it))
+    });
+    st.done("bases: sky");
+    let surfaces = if plan.surfaces != Optional::Off { model::surface::basis(scene, rows, bvh, plan.fast_area) } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
+    st.done("bases: surfaces");
+    let luxels = rows.texel.iter().any(|t| t[0] != u32::MAX);
+    let nb = if luxels && (plan.dirt != Optional::Off || plan.filter != Optional::Off) { model::compile::neighbours(rows) } else { vec![Vec::new(); rows.len()] };
+    let dirt = (plan.dirt != Optional::Off).then(|| {
+        use crate::scene::q3map2::DIRT_DEPTH_UNITS;
+        model::compile::dirt(rows, bvh, &nb, &model::compile::DirtSettings { depth: DIRT_DEPTH_UNITS * scene.units_m, scale: 1.0, gain: 1.0 })
+    });
+    let filter = (plan.filter != Optional::Off && luxels).then(|| model::compile::filter(rows, &nb));
+    st.done("bases: dirt, filter");
+    let bounce = (plan.bounce != Optional::Off).then(|| model::bounce::operator(scene, rows, bvh, bounce_rays).0);
+    st.done("bases: bounce");
+    let gathered = (with_gathered && plan.bounce != Optional::Off).then(|| crate::gather::gather(scene, bvh, rows, bounce_rays).0);
+    st.done("bases: gathered");
+    let bounce_reflectance = if bounce.is_some() { model::bounce::reflectance(rows) } else { Vec::new() };
+    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounces: plan.bounces, gathered, sky_triangles }
+}
+
+/// The map's own emitters as the file declares them: the sun (from its directional
+/// light), the sky light and the surface lights (from the shaders' values), the
+/// worldspawn's minlight and ambient.
+fn declared_model(scene: &Scene, bases: &Bases, plan: &Plan2) -> Model {
+    let e_per_byte = q3gltf_convert::units::e_per_byte(scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(2, |m| m.overbright_bits)) as f32;
+    let e_irr = std::f32::consts::PI * e_per_byte;
+    let sun = (plan.sun != Optional::Off).then(|| scene.suns.first().map(|s| Sun { to_sun: s.to_sun, rgb: s.color.map(|c| c * s.intensity_lux / LM_PER_W as f32) })).flatten();
+    let sky = bases.sky.as_ref().map(|_| {
+        let (v, c) = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| (s.0, s.2)).fold((0.0f32, [1.0f32; 3]), |a, b| if b.0 > a.0 { b } else { a });
+        c.map(|k| k * v * e_irr)
+    });
+    let surfaces = bases.surfaces.groups.iter().map(|g| Some(g.source_rgb)).collect();
+    let minlight = scene.compile.minlight.map(|m| m.map(|v| v * e_irr));
+    let ambient = scene.compile.ambient.map(|a| a.map(|v| v * e_irr));
+    Model { lights: Vec::new(), sun, sky: sky.filter(|k| k[0] > 0.0), surfaces, ambient, bounce: None, minlight, gathered: None, dirt: false, filter: false }
+}
+
+/// The model's lightmap of a scene: one luxel row per lightmap texel, as relight fits
+/// them, and the model's radiance at each (W/(m^2 sr)), computed by the CPU reference.
+/// The lightmap byte q3map2 would store for a row is `x / albedo` in the units of
+/// [`crate::scene::Material::decode`]. Used to make synthetic ground truth and to bake.
+pub struct Rendered {
+    pub rows: Rows,
+    pub radiance: Vec<[f64; 3]>,
+}
+
+/// Renders `model` (its lights, sun, sky, surfaces, ambient, minlight, dirt, filter and
+/// `bounces` passes of bounced light traced with `bounce_rays` rays per row) on the luxel
+/// rows of `scene`.
+pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) -> Result<Rendered> {
+    let bvh = Bvh::occluders(scene);
+    let (lo, hi) = scene.mesh.bounds();
+    let mut lx = luxel::rows(scene, &projection::Target::empty(scene.mesh.positions.len()), (hi - lo).length());
+    luxel::drop_buried(&mut lx, scene, &bvh);
+    let rows = lx.rows;
+    let plan = Plan2 {
+        sun: if model.sun.is_some() { Optional::On } else { Optional::Off },
+        sky: if model.sky.is_some() { Optional::On } else { Optional::Off },
+        surfaces: if model.surfaces.iter().any(Option::is_some) { Optional::On } else { Optional::Off },
+        bounce: if model.bounce.is_some() && bounces > 0 { Optional::On } else { Optional::Off },
+        bounces,
+        dirt: if model.dirt { Optional::On } else { Optional::Off },
+        filter: if model.filter { Optional::On } else { Optional::Off },
+        fast_area: false,
+    };
+    let mut st = Stages { t: Instant::now(), list: Vec::new() };
+    let bases = build_bases(scene, &rows, &bvh, &plan, bounce_rays, false, &mut st);
+    let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+    let mut vis = crate::trace::visibility::Visibility::default();
+    vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &bases.sky_triangles));
+    vis.update(&model.lights, 0.0, &rows.sampling, rows.len(), &mut |p| cpu.trace(p))?;
+    let radiance = model::radiance(model, &rows, &bases, &vis, &mut cpu)?;
+    Ok(Rendered { rows, radiance })
 }
 
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
@@ -296,127 +536,106 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let (plan, reason) = choose_backend(opts.backend)?;
     st.done("backend");
 
-    progress.stage("target");
-    let (lo, hi) = scene.mesh.bounds();
-    let diag = (hi - lo).length();
-    let (mut pb, tstats, luxel_stats, target_backend) = match opts.target {
-        TargetSpace::Vertex => {
-            let (tg, tstats, target_backend) = project(&plan, &scene)?;
-            (Problem::new(&scene.mesh, &tg, diag), tstats, None, target_backend)
-        }
-        TargetSpace::Luxel => {
-            // The per-vertex projection is still needed for vertex-lit materials' rows.
-            let vertex_lit = scene.materials.iter().any(|m| m.lighting == crate::scene::Lighting::Vertex);
-            let (tg, tstats, backend) = if vertex_lit { project(&plan, &scene)? } else { (target::Target::empty(scene.mesh.positions.len()), TargetStats::default(), "none needed".into()) };
-            let lx = crate::luxel::problem(&scene, &tg, diag);
-            (lx.problem, tstats, Some(lx.stats), format!("luxel rows on the cpu; vertex-lit projection: {backend}"))
-        }
-    };
-    st.done("target");
-    if pb.is_empty() || pb.weight.iter().all(|w| w.iter().all(|&x| x == 0.0)) {
-        return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
-    }
-
     progress.stage("bvh");
-    let bvh = Bvh::build(&scene.mesh);
+    let bvh = Bvh::occluders(&scene);
     st.done("bvh");
 
-    progress.stage("indirect");
-    let indirect_gather = (opts.indirect != Optional::Off).then(|| crate::indirect::gather(&scene, &bvh, &mut pb, opts.indirect_rays));
-    st.done("indirect");
-    let pb = pb;
+    progress.stage("rows");
+    let (rows, tstats, luxel_stats, target_backend) = build_rows(opts, &plan, &scene, &bvh)?;
+    st.done("rows");
+    if rows.is_empty() || !rows.has_data() {
+        return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
+    }
+    let (lo, hi) = scene.mesh.bounds();
+    let diag = (hi - lo).length();
+
+    progress.stage("bases");
+    let (terms, compile_note) = plan_terms(opts, &scene);
+    let bases = build_bases(&scene, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
 
     let mut backend: Box<dyn Backend + '_> = match plan {
-        Plan::Cpu => Box::new(Cpu { pb: &pb, bvh: &bvh }),
-        Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &pb, &bvh)?),
+        Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),
+        Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
     };
     let backend_name = backend.name();
     st.done("upload");
 
-    // Starting lights.
+    // The map's own emitters, then the switches the recorded compile fixes.
     progress.stage("init");
+    let mut start = declared_model(&scene, &bases, &terms);
+    start.dirt = terms.dirt == Optional::On;
+    start.filter = terms.filter == Optional::On;
+    if terms.bounce != Optional::Off && bases.bounce.is_some() {
+        start.bounce = Some([1.0; 3]);
+    }
     let input_lights: Vec<(Light, bool, usize)> = scene
         .lights
         .iter()
         .enumerate()
         .map(|(k, l)| {
             let i = l.intensity_cd as f64 / LM_PER_W;
-            (Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32) }, l.locked, k)
+            let spot = l.spot.map(|(axis, radius_by_dist)| Spot { axis, radius_by_dist });
+            (Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32), spot }, l.locked || opts.fit == FitMode::Globals, k)
         })
         .collect();
-    // The indirect term is part of the model from the start (lights are placed for what it
-    // leaves unexplained); `auto` removes it after the optimisation if it does not help.
-    let mut globals0 = crate::fit::Globals { indirect: (opts.indirect != Optional::Off).then_some([0.5; 3]), ..Default::default() };
-    // The sun: the input's (with --init input), else searched, when the scene could have one.
-    let sky: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
-    let consider_sun = match opts.sun {
-        Optional::Off => false,
-        Optional::On => true,
-        Optional::Auto => sky.iter().any(|&s| s) || !scene.suns.is_empty(),
-    };
-    let mut sun_note = if consider_sun { String::new() } else { format!("off ({})", if opts.sun == Optional::Off { "--sun off" } else { "no sky surface, no directional light" }) };
-    if consider_sun {
-        let input_sun = scene.suns.first().map(|s| crate::model::Sun { to_sun: s.to_sun, rgb: s.color.map(|c| (c as f64 * s.intensity_lux as f64 / LM_PER_W) as f32) });
-        globals0.sun = match (&opts.init, input_sun) {
-            (Init::Input, Some(s)) => Some(s),
-            _ => {
-                let sub = pb.subsample(10_000, opts.seed);
-                let base: Vec<[f32; 3]> = sub.indirect.iter().map(|o| if globals0.indirect.is_some() { *o } else { [0.0; 3] }).collect();
-                let extra: Vec<Vec3> = scene.suns.iter().map(|s| s.to_sun).collect();
-                init::sun_search(&sub, &bvh, &sky, &base, &extra, None).map(|(s, _)| s)
-            }
-        };
-        if globals0.sun.is_none() {
-            sun_note = "no direction lowers the error".into();
-        }
+    // Without a declared sun: searched where sky surfaces could let one in.
+    if terms.sun != Optional::Off && start.sun.is_none() && opts.fit == FitMode::All {
+        let (sub, take) = rows.subsample(10_000, opts.seed);
+        let sub_bases = bases.subset(&take);
+        let base_model = Model { lights: Vec::new(), sun: None, gathered: sub_bases.gathered.as_ref().map(|_| [0.5; 3]), ..start.clone() };
+        let vis = crate::trace::visibility::Visibility::default();
+        let base = model::radiance(&base_model, &sub, &sub_bases, &vis, &mut Cpu { rows: &sub, bvh: &bvh })?;
+        let extra: Vec<Vec3> = scene.suns.iter().map(|s| s.to_sun).collect();
+        start.sun = init::sun_search(&sub, &bvh, &bases.sky_triangles, &base, &extra, None).map(|(s, _)| s);
     }
     st.done("sun");
     let mut auto_stats: Option<init::AutoStats> = None;
-    let (start, sources): (Vec<(Light, bool)>, Vec<Option<usize>>) = match &opts.init {
+    let (lights, locked, sources): (Vec<Light>, Vec<bool>, Vec<Option<usize>>) = match &opts.init {
         Init::Input => {
-            if input_lights.is_empty() {
-                return Err(Error::Usage(format!("{}: --init input, but the file has no point lights", opts.input.display())));
+            if input_lights.is_empty() && opts.fit == FitMode::All && start == Model::default() {
+                return Err(Error::Usage(format!("{}: --init input, but the file has no point or spot lights", opts.input.display())));
             }
-            (input_lights.iter().map(|(l, k, _)| (*l, *k)).collect(), input_lights.iter().map(|x| Some(x.2)).collect())
+            (input_lights.iter().map(|x| x.0).collect(), input_lights.iter().map(|x| x.1).collect(), input_lights.iter().map(|x| Some(x.2)).collect())
         }
         Init::Grid(n) => {
             let g = init::grid(*n, lo, hi);
-            let s = vec![None; g.len()];
-            (g.into_iter().map(|l| (l, false)).collect(), s)
+            let k = g.len();
+            (g, vec![false; k], vec![None; k])
         }
         Init::Auto => {
             // Locked input lights stay (the user's decision); the rest is placed anew.
-            let keep: Vec<(Light, bool)> = input_lights.iter().filter(|x| x.1).map(|x| (x.0, true)).collect();
-            let mut src: Vec<Option<usize>> = input_lights.iter().filter(|x| x.1).map(|x| Some(x.2)).collect();
-            let (lights, stats) = init::auto(&scene.mesh, &pb, &bvh, &sky, lo, hi, &keep, globals0, opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
+            let keep: Vec<&(Light, bool, usize)> = input_lights.iter().filter(|x| x.1).collect();
+            let with = Model { lights: keep.iter().map(|x| x.0).collect(), gathered: bases.gathered.as_ref().map(|_| [0.5; 3]), bounce: None, filter: false, ..start.clone() };
+            let (placed, stats) = init::auto(&scene.mesh, &rows, &bases, &bvh, lo, hi, &with, &vec![true; keep.len()], opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
             auto_stats = Some(stats);
-            src.resize(lights.len(), None);
-            let locked: Vec<bool> = (0..lights.len()).map(|j| j < keep.len()).collect();
-            (lights.into_iter().zip(locked).collect(), src)
+            // The placement's fit of the declared emitters is a better start than their
+            // declared values.
+            start.sun = placed.sun.or(start.sun);
+            start.sky = placed.sky.or(start.sky);
+            start.surfaces = placed.surfaces.clone();
+            start.ambient = placed.ambient.or(start.ambient);
+            let n = placed.lights.len();
+            let mut src: Vec<Option<usize>> = keep.iter().map(|x| Some(x.2)).collect();
+            src.resize(n, None);
+            (placed.lights, (0..n).map(|j| j < keep.len()).collect(), src)
         }
     };
     st.done("init");
 
-    let mut fit = Fitter::new(&pb, &bvh, backend.as_mut(), lo, hi);
+    let mut fit = Fitter::new(&rows, &bases, &bvh, backend.as_mut(), lo, hi);
     fit.deadline = deadline;
     // One clock for the whole run: the report's curve shows placement and fit together.
     fit.start = t_all;
-    fit.globals = globals0;
-    fit.sky = sky.clone();
+    fit.model = Model { lights: Vec::new(), ..start };
+    fit.frozen_emitters = opts.fit == FitMode::Globals;
+    fit.kind_scales = opts.fit == FitMode::Globals;
+    fit.frozen_minlight = scene.compile.minlight.is_some();
     let mut sources = sources;
-    for (l, locked) in &start {
-        fit.add_light(*l, *locked);
+    for (l, k) in lights.iter().zip(&locked) {
+        fit.add_light(*l, *k);
     }
-    // Keep `sources` aligned with the lights through pruning and merging: tag by position.
-    // With --init input the start is the file as it is: its lights and sun, nothing else.
-    let rel_error_initial = if matches!(opts.init, Init::Input) {
-        fit.globals = crate::fit::Globals { sun: globals0.sun.filter(|_| !scene.suns.is_empty()), ..Default::default() };
-        let e = fit.eval().rel_error;
-        fit.globals = globals0;
-        e
-    } else {
-        fit.fit_intensities()
-    };
+    // With --init input the start is the file as it is; otherwise the linear fit first.
+    let rel_error_initial = if matches!(opts.init, Init::Input) { fit.eval().rel_error } else { fit.fit_linear() };
     st.done("start");
 
     fit.on_iter = Some(Box::new(|r: &IterRecord| progress.iteration(r)));
@@ -433,43 +652,31 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     st.done("optimise");
 
-    // The indirect term only where it lowers the error; then as few lights as the scene
-    // needs; then the ambient term, again only where it lowers the error.
+    // Every optional term only where it lowers the error; then as few lights as the data
+    // needs.
     progress.stage("prune");
-    let indirect_note = decide(&mut fit, |g, on| g.indirect = on.then_some([0.5; 3]), opts.indirect);
-    if let Some(fitted) = fit.globals.sun {
-        sun_note = decide(&mut fit, |g, on| g.sun = on.then_some(fitted), opts.sun);
-    }
+    let mut term_reports = Vec::new();
+    decide_terms(&mut fit, &terms, opts, &mut term_reports);
     let mut pruned = 0;
     let mut merged = 0;
-    if !matches!(opts.init, Init::Grid(_)) || opts.scheme == "default" {
-        let before: Vec<Vec3> = fit.lights.iter().map(|l| l.pos).collect();
+    if opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") {
+        let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
         pruned = fit.prune(0.002);
         merged = fit.merge((0.03 * diag).max(2.0 * fit.min_dist), 0.002);
         // Re-associate input sources by position (pruning and merging removed entries).
-        sources = fit.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
+        sources = fit.model.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
     }
-    let ambient_note = decide(&mut fit, |g, on| g.ambient = on.then_some([1e-6; 3]), Optional::Auto);
-    // The sun's direction by search, now that the final lights explain their part (shadow
-    // edges move with it; the gradient sees only the cosine); the polish below follows.
-    if let Some(s) = fit.globals.sun.filter(|_| !fit.out_of_time()) {
-        let sub = pb.subsample(40_000, opts.seed);
-        let mut vis = crate::visibility::Visibility::default();
-        let others = crate::fit::Globals { sun: None, ..fit.globals };
-        let _ = vis.update(&fit.lights, 0.0, sub.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &sub, q)).collect()));
-        let base = crate::model::radiance(&sub, &vis, &fit.lights, others.terms());
-        if let Some((better, _)) = init::sun_search(&sub, &bvh, &sky, &base, &[], Some(s.to_sun)) {
-            let before = fit.eval().f;
-            let saved = (fit.lights.clone(), fit.globals);
-            fit.globals.sun = Some(Sun { rgb: s.rgb, ..better });
-            fit.fit_intensities();
-            if !(fit.eval().f <= before) {
-                (fit.lights, fit.globals) = saved;
-            }
+    // The sun's direction by search, now that the rest explains its part, and the rest
+    // polished for it; twice, as the lights had bent to the first direction.
+    let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(40).min(40) };
+    let sun_rounds = if fit.model.sun.is_some() && opts.fit == FitMode::All { SUN_ROUNDS } else { 0 };
+    for _ in 0..sun_rounds {
+        if let Some(s) = fit.model.sun.filter(|_| !fit.out_of_time()) {
+            refine_sun(&mut fit, s, opts.seed);
+            fit.run_phase("polish", polish);
         }
     }
-    if (pruned + merged > 0 || fit.globals != crate::fit::Globals::default()) && !fit.out_of_time() {
-        let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(40).min(40) };
+    if sun_rounds == 0 && (pruned + merged > 0 || !term_reports.is_empty()) && !fit.out_of_time() {
         fit.run_phase("polish", polish);
     }
     let final_eval = fit.eval();
@@ -478,12 +685,16 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     st.done("prune");
 
-    // Energy share of each light (area-weighted model radiance).
-    let shares = energy_shares(&pb, &fit);
-    let lights: Vec<Light> = fit.lights.clone();
+    let shares = energy_shares(&rows, &fit);
+    let residual_by_material = residual_by_material(&scene, &rows, &bases, &mut fit)?;
+    if let Some(path) = &opts.dump_rows {
+        dump_rows(path, &scene, &rows, &bases, &mut fit)?;
+    }
+    let m = fit.model.clone();
     let locked = fit.locked.clone();
-    let names = light_names(&sources.iter().map(|s| s.map(|k| scene.lights[k].name.as_str())).collect::<Vec<_>>(), lights.len());
-    let out_lights: Vec<OutLight> = lights
+    let names = light_names(&sources.iter().map(|s| s.map(|k| scene.lights[k].name.as_str())).collect::<Vec<_>>(), m.lights.len());
+    let out_lights: Vec<OutLight> = m
+        .lights
         .iter()
         .enumerate()
         .map(|(j, l)| {
@@ -496,8 +707,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             OutLight {
                 position,
                 rgb: l.rgb.map(|c| c as f64),
+                spot: l.spot.map(|s| OutSpot { axis: s.axis.as_dvec3(), radius_by_dist: s.radius_by_dist as f64, ramp_m: rows.sampling.spot_ramp as f64, typical_distance_m: spot_distance(&bvh, l) }),
                 source_node: src.map(|s| (s.node, s.parent_world)),
-                // An input light keeps its name (the user's); new ones are numbered.
                 name: names[j].clone(),
                 extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
                 locked: locked[j],
@@ -510,39 +721,64 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     history.extend(fit.history.iter().cloned());
     let evaluations = fit.evaluations;
     let rays = fit.vis.rays;
-    let ambient = fit.globals.ambient;
-    let indirect = fit.globals.indirect;
-    let fit_sun = fit.globals.sun;
     drop(fit);
     progress.stage("write");
-    // With the indirect term, the lights reproduce the data only together with the bounced
-    // light that a renderer with global illumination adds: say so for the user.
-    let scene_extras = json!({ "rel_error": final_eval.rel_error, "lights": out_lights.len(), "ambient": ambient, "indirect_scale": indirect, "lights_are": if indirect.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" } });
-    let out_sun = fit_sun.map(|s| lights_out::OutSun {
+    // Emission: each surface group's fitted radiance on its materials; the sky light as
+    // the sky materials' uniform radiance.
+    let mut emissive: Vec<(usize, [f64; 3])> = Vec::new();
+    for (g, l) in bases.surfaces.groups.iter().zip(&m.surfaces) {
+        if let Some(l) = l {
+            emissive.extend(g.materials.iter().map(|&mi| (mi as usize, l.map(|v| v as f64))));
+        }
+    }
+    if let (Some(k), Some(b)) = (m.sky, &bases.sky) {
+        let radiance = k.map(|v| (v * b.mean_cos_up) as f64 / std::f64::consts::PI);
+        for (mi, mat) in scene.materials.iter().enumerate() {
+            if mat.sky && !emissive.iter().any(|e| e.0 == mi) {
+                emissive.push((mi, radiance));
+            }
+        }
+    }
+    let scene_extras = json!({
+        "rel_error": final_eval.rel_error,
+        "lights": out_lights.len(),
+        "ambient": m.ambient,
+        "minlight": m.minlight,
+        "bounce_scale": m.bounce,
+        "bounces": bases.bounces,
+        "dirt": m.dirt,
+        "filter": m.filter,
+        "lights_are": if m.bounce.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" },
+    });
+    let out_sun = m.sun.map(|s| lights_out::OutSun {
         to_sun: s.to_sun.as_dvec3(),
         rgb: s.rgb.map(|c| c as f64),
         name: scene.suns.first().map(|s| s.name.clone()).filter(|n| !n.is_empty()).unwrap_or_else(|| "sun".into()),
         extras: json!({ "q3_relight": { "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
     });
-    lights_out::write(&opts.input, &opts.output, &out_lights, out_sun.as_ref(), opts.sun != Optional::Off, scene_extras)?;
+    lights_out::write(&opts.input, &opts.output, &lights_out::Output { lights: &out_lights, sun: out_sun.as_ref(), replace_suns: terms.sun != Optional::Off, emissive: &emissive, scene_extras })?;
     st.done("write");
 
     let light_reports = out_lights
         .iter()
         .zip(&shares)
         .map(|(l, s)| {
-            let m = l.rgb.iter().copied().fold(0.0f64, f64::max);
+            let mx = l.rgb.iter().copied().fold(0.0f64, f64::max);
             LightReport {
                 name: l.name.clone(),
+                kind: if l.spot.is_some() { "spot" } else { "point" },
                 position_m: l.position.to_array(),
-                intensity_cd: m * LM_PER_W,
-                color: if m > 0.0 { l.rgb.map(|c| c / m) } else { [1.0; 3] },
-                range_m: lights_out::range_m(m),
+                intensity_cd: mx * LM_PER_W,
+                color: if mx > 0.0 { l.rgb.map(|c| c / mx) } else { [1.0; 3] },
+                spot_axis: l.spot.as_ref().map(|s| s.axis.to_array()),
+                spot_angle_deg: l.spot.as_ref().map(|s| s.radius_by_dist.atan().to_degrees()),
+                range_m: lights_out::range_m(mx),
                 energy_share: *s,
                 locked: l.locked,
             }
         })
         .collect();
+    let surfaces = bases.surfaces.groups.iter().enumerate().map(|(s, g)| SurfaceReport { shader: g.name.clone(), rows_reached: bases.surfaces.reach(s), patches: g.patches, area_m2: g.area_m2, source_radiance: g.source_rgb, radiance: m.surfaces.get(s).copied().flatten() }).collect();
     Ok(Report {
         input: opts.input.display().to_string(),
         output: opts.output.display().to_string(),
@@ -555,34 +791,34 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             Init::Grid(n) => format!("grid:{n}"),
             Init::Input => "input".into(),
         },
+        fit: opts.fit,
         vertices_input,
         triangles_input,
         subdivision,
         target_space: opts.target,
         target: tstats,
         luxel: luxel_stats,
-        problem_rows: pb.len(),
+        problem_rows: rows.len(),
+        compile_cmdline: scene.compile.cmdline.clone(),
+        compile_note,
         rel_error_initial,
         rel_error_final: final_eval.rel_error,
         lights: light_reports,
-        ambient,
-        ambient_note,
-        indirect,
-        indirect_note,
-        indirect_gather,
         sun: out_sun.as_ref().map(|s| {
-            let m = s.rgb.iter().copied().fold(0.0f64, f64::max);
-            let (t, p) = crate::fit::sun_angles(s.to_sun.as_vec3());
-            SunReport {
-                name: s.name.clone(),
-                to_sun: s.to_sun.to_array(),
-                elevation_deg: t.to_degrees(),
-                azimuth_deg: p.to_degrees(),
-                illuminance_lux: m * LM_PER_W,
-                color: if m > 0.0 { s.rgb.map(|c| c / m) } else { [1.0; 3] },
-            }
+            let mx = s.rgb.iter().copied().fold(0.0f64, f64::max);
+            let (t, p) = crate::fit::angles(s.to_sun.as_vec3());
+            SunReport { name: s.name.clone(), to_sun: s.to_sun.to_array(), elevation_deg: t.to_degrees(), azimuth_deg: p.to_degrees(), illuminance_lux: mx * LM_PER_W, color: if mx > 0.0 { s.rgb.map(|c| c / mx) } else { [1.0; 3] } }
         }),
-        sun_note,
+        sky: m.sky,
+        surfaces,
+        ambient: m.ambient,
+        minlight: m.minlight,
+        bounce: m.bounce,
+        bounces: bases.bounces,
+        dirt: m.dirt,
+        filter: m.filter,
+        terms: term_reports,
+        residual_by_material,
         pruned,
         merged,
         auto: auto_stats,
@@ -594,6 +830,93 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         total_time_s: t_all.elapsed().as_secs_f64(),
         skipped_primitives: scene.skipped,
     })
+}
+
+/// How far a spot's axis runs before it meets the scene (for its cone in glTF angles).
+fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
+    let Some(s) = l.spot else { return 0.0 };
+    let reach = bvh.reach();
+    bvh.first_hit(l.pos, s.axis * reach, 1.0).map_or(1.0, |(t, _)| (t * reach) as f64)
+}
+
+/// Decides each optional term (see [`Optional`]): with `auto` a term stays when the linear
+/// fit with it lowers the relative error by at least [`TERM_GAIN`] against the same fit
+/// without it. Appends one report per term considered.
+fn decide_terms(fit: &mut Fitter, terms: &Plan2, opts: &Options, out: &mut Vec<TermReport>) {
+    type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
+    let mut list: Vec<(String, Optional, Set)> = Vec::new();
+    if fit.bases.bounce.is_some() {
+        list.push(("bounce".into(), terms.bounce, Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None })));
+    }
+    if fit.bases.dirt.is_some() {
+        list.push(("dirt".into(), terms.dirt, Box::new(|m, _, on| m.dirt = on)));
+    }
+    if fit.bases.filter.is_some() {
+        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on)));
+    }
+    if opts.fit == FitMode::All {
+        if fit.model.sun.is_some() {
+            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None })));
+        }
+        if fit.bases.sky.is_some() {
+            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None })));
+        }
+        for (s, g) in fit.bases.surfaces.groups.clone().iter().enumerate() {
+            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None })));
+        }
+    }
+    list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None })));
+    for (name, choice, set) in list {
+        if fit.out_of_time() {
+            break;
+        }
+        let entry = fit.model.clone();
+        let variant = |on: bool, fit: &mut Fitter| {
+            set(&mut fit.model, &entry, on);
+            let e = fit.fit_linear();
+            (e, fit.model.clone(), fit.vis.clone())
+        };
+        if choice == Optional::Off {
+            let (e, m, v) = variant(false, fit);
+            (fit.model, fit.vis) = (m, v);
+            out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: f64::NAN, note: "off".into() });
+            continue;
+        }
+        let without = variant(false, fit);
+        let with = variant(true, fit);
+        let keep = choice == Optional::On || with.0 < without.0 - TERM_GAIN;
+        let note = match (choice, keep) {
+            (Optional::On, _) => "on (asked, or the recorded compile)".to_string(),
+            (_, true) => "kept: lowers the error".into(),
+            (_, false) => "not used: does not lower the error enough".into(),
+        };
+        out.push(TermReport { term: name, kept: keep, rel_error_without: without.0, rel_error_with: with.0, note });
+        let chosen = if keep { with } else { without };
+        (_, fit.model, fit.vis) = chosen;
+    }
+}
+
+/// The sun's direction by search with the rest of the model fixed (its shadows' edges,
+/// which carry the information, are invisible to the gradient).
+fn refine_sun(fit: &mut Fitter, s: Sun, seed: u64) {
+    let (sub, take) = fit.rows.subsample(40_000, seed);
+    let sub_bases = fit.bases.subset(&take);
+    let others = Model { sun: None, bounce: None, filter: false, ..fit.model.clone() };
+    let mut vis = crate::trace::visibility::Visibility::default();
+    let bvh = fit.bvh;
+    if vis.update(&others.lights, 0.0, &sub.sampling, sub.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(bvh, &sub, q, r)).collect())).is_err() {
+        return;
+    }
+    let Ok(base) = model::radiance(&others, &sub, &sub_bases, &vis, &mut Cpu { rows: &sub, bvh }) else { return };
+    if let Some((better, _)) = init::sun_search(&sub, bvh, &fit.bases.sky_triangles, &base, &[], Some(s.to_sun)) {
+        let before = fit.eval().f;
+        let saved = (fit.model.clone(), fit.vis.clone());
+        fit.model.sun = Some(Sun { rgb: s.rgb, ..better });
+        fit.fit_linear();
+        if !(fit.eval().f <= before) {
+            (fit.model, fit.vis) = saved;
+        }
+    }
 }
 
 /// Output light names: a light continuing an input light keeps its (non-empty, first
@@ -616,56 +939,93 @@ fn light_names(source_names: &[Option<&str>], count: usize) -> Vec<String> {
     names.into_iter().map(|n| n.expect("every light named above")).collect()
 }
 
-/// Decides whether a global term stays in the model: with `auto`, when the exact
-/// intensity fit with it lowers the relative error by at least [`TERM_GAIN`] against the
-/// same fit without it (whether or not the term is in the model on entry). Returns the
-/// note for the report.
-fn decide(fit: &mut Fitter, set: impl Fn(&mut crate::fit::Globals, bool), choice: Optional) -> String {
-    if choice == Optional::Off {
-        set(&mut fit.globals, false);
-        return "off".into();
-    }
-    let entry = fit.globals;
-    let variant = |on: bool, fit: &mut Fitter| {
-        let mut g = entry;
-        set(&mut g, on);
-        // Keep a fitted value when the term is already in the model.
-        if g.ambient.is_some() && entry.ambient.is_some() {
-            g.ambient = entry.ambient;
+/// Each light's share of the area-weighted direct radiance it sends to the rows.
+fn energy_shares(rows: &Rows, fit: &Fitter) -> Vec<f64> {
+    let m = &fit.model;
+    let mut e = vec![0.0f64; m.lights.len()];
+    for (j, l) in m.lights.iter().enumerate() {
+        if j >= fit.vis.bits.len() {
+            continue;
         }
-        if g.indirect.is_some() && entry.indirect.is_some() {
-            g.indirect = entry.indirect;
-        }
-        fit.globals = g;
-        let e = fit.fit_intensities();
-        (e, fit.lights.clone(), fit.vis.clone(), fit.globals)
-    };
-    let without = variant(false, fit);
-    let with = variant(true, fit);
-    let (e0, e1) = (without.0, with.0);
-    let keep = choice == Optional::On || e1 < e0 - TERM_GAIN;
-    let chosen = if keep { with } else { without };
-    (_, fit.lights, fit.vis, fit.globals) = chosen;
-    match (choice, keep) {
-        (Optional::On, _) => format!("on: relative error {e0:.4} without, {e1:.4} with it"),
-        (_, true) => format!("kept: relative error {e0:.4} -> {e1:.4}"),
-        (_, false) => format!("not used: relative error {e0:.4} -> {e1:.4} with it"),
-    }
-}
-
-fn energy_shares(pb: &Problem, fit: &Fitter) -> Vec<f64> {
-    let mut e = vec![0.0f64; fit.lights.len()];
-    for (j, l) in fit.lights.iter().enumerate() {
-        for i in 0..pb.len() {
+        for i in 0..rows.len() {
             if !fit.vis.visible(j, i) {
                 continue;
             }
-            let (g, _) = crate::model::geometry_term(pb.pos[i], pb.normal[i], l.pos, pb.eps);
-            e[j] += pb.area[i] as f64 * (0..3).map(|c| pb.albedo[i][c] as f64 * l.rgb[c] as f64).sum::<f64>() * g as f64;
+            let g = model::lights::term(rows, i, l).g as f64;
+            e[j] += rows.area[i] as f64 * (0..3).map(|c| rows.albedo[i][c] as f64 * l.rgb[c] as f64).sum::<f64>() * g;
         }
     }
     let total: f64 = e.iter().sum();
     e.iter().map(|v| if total > 0.0 { v / total } else { 0.0 }).collect()
+}
+
+/// Every row as CSV: material, texel, position and normal (world, m), albedo, the data's
+/// interval (lo, hi; a censored channel's lower bound in lo with hi empty), the model,
+/// the area, and the model's green channel from each kind of emitter alone (the lights,
+/// the sun and sky, the surface lights; through the same chain).
+fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, fit: &mut Fitter) -> Result<()> {
+    use std::fmt::Write;
+    let m = fit.model.clone();
+    let x = model::radiance(&m, rows, bases, &fit.vis, &mut *fit.backend)?;
+    let bare = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, minlight: None, gathered: None, ..m.clone() };
+    let only_lights = model::radiance(&Model { lights: m.lights.clone(), ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
+    let only_sky = model::radiance(&Model { sun: m.sun, sky: m.sky, ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
+    let only_surfaces = model::radiance(&Model { surfaces: m.surfaces.clone(), ..bare }, rows, bases, &fit.vis, &mut *fit.backend)?;
+    let mut s = String::from("material,tex,tx,ty,px,py,pz,nx,ny,nz,ar,ag,ab,lo_r,lo_g,lo_b,hi_r,hi_g,hi_b,x_r,x_g,x_b,area,g_lights,g_sky,g_surfaces\n");
+    for i in 0..rows.len() {
+        let p = scene.origin + rows.pos[i].as_dvec3();
+        let n = rows.normal[i];
+        let name = scene.materials.get(rows.material[i] as usize).map_or("", |m| m.name.as_str()).replace(',', ";");
+        let t = rows.texel[i].map(|v| if v == u32::MAX { -1 } else { v as i64 });
+        let (lo, hi): ([f32; 3], [Option<f32>; 3]) = ([0, 1, 2].map(|c| if rows.weight[i][c] > 0.0 { rows.lo[i][c] } else { rows.lower[i][c] }), [0, 1, 2].map(|c| (rows.weight[i][c] > 0.0).then_some(rows.hi[i][c])));
+        let hs = hi.map(|h| h.map_or(String::new(), |v| v.to_string()));
+        let a = rows.albedo[i];
+        let _ = writeln!(
+            s,
+            "{name},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            t[0], t[1], t[2], p.x, p.y, p.z, n.x, n.y, n.z, a[0], a[1], a[2], lo[0], lo[1], lo[2], hs[0], hs[1], hs[2], x[i][0], x[i][1], x[i][2], rows.area[i], only_lights[i][1], only_sky[i][1], only_surfaces[i][1]
+        );
+    }
+    q3gltf_convert::output::write_atomic(path, s.as_bytes()).map_err(|e| Error::Io { path: path.display().to_string(), source: e })
+}
+
+/// The residual per material, largest share first.
+fn residual_by_material(scene: &Scene, rows: &Rows, bases: &Bases, fit: &mut Fitter) -> Result<Vec<MaterialResidual>> {
+    let m = fit.model.clone();
+    let x = model::radiance(&m, rows, bases, &fit.vis, &mut *fit.backend)?;
+    let k = scene.materials.len();
+    let mut acc = vec![(0usize, 0.0f64, 0.0f64, [0.0f64; 3], [0.0f64; 3], 0.0f64); k];
+    let mut total = 0.0;
+    for i in 0..rows.len() {
+        let mi = (rows.material[i] as usize).min(k.saturating_sub(1));
+        let a = &mut acc[mi];
+        a.0 += 1;
+        for c in 0..3 {
+            let w = rows.area[i] as f64 * rows.weight[i][c] as f64;
+            let (_, _, num) = crate::rows::residual(x[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64);
+            a.1 += num;
+            a.2 += w * rows.mid(i, c).powi(2);
+            a.3[c] += w * rows.mid(i, c);
+            a.4[c] += w * x[i][c];
+            total += num;
+        }
+        a.5 += rows.area[i] as f64;
+    }
+    let mut out: Vec<MaterialResidual> = acc
+        .into_iter()
+        .enumerate()
+        .filter(|(_, a)| a.0 > 0)
+        .map(|(mi, a)| MaterialResidual {
+            material: scene.materials[mi].name.clone(),
+            rows: a.0,
+            residual_share: if total > 0.0 { a.1 / total } else { 0.0 },
+            rel_error: if a.2 > 0.0 { (a.1 / a.2).sqrt() } else { 0.0 },
+            mean_data: a.3.map(|v| if a.5 > 0.0 { v / a.5 } else { 0.0 }),
+            mean_model: a.4.map(|v| if a.5 > 0.0 { v / a.5 } else { 0.0 }),
+        })
+        .collect();
+    out.sort_by(|a, b| b.residual_share.total_cmp(&a.residual_share));
+    Ok(out)
 }
 
 #[cfg(test)]

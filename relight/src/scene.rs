@@ -61,17 +61,99 @@ pub struct Material {
     pub lightmap_gamma: f32,
     /// A sky surface: sunlight passes it (the sun is behind it), it carries no target.
     pub sky: bool,
+    /// Both sides face outward (glTF `doubleSided`, q3 `cull none`).
+    pub double_sided: bool,
+    /// Blocks light (q3map2: translucent surfaces without `alphashadow`/`lightfilter`
+    /// cast no shadow). From extras `q3_casts_shadow`; without them, `BLEND` materials
+    /// are taken as translucent.
+    pub casts_shadow: bool,
+    /// q3map2 surface light of this material's shader.
+    pub emitter: Option<Emitter>,
+    /// `q3map_skyLight` value, iterations and colour (largest channel 1; sky materials).
+    pub sky_lights: Vec<(f32, u32, [f32; 3])>,
+    /// The file's own emission: `emissiveFactor x emissiveStrength`, W/(m^2 sr) (what a
+    /// renderer shows; the probe uses it).
+    pub emission: [f32; 3],
 }
 
 impl Material {
-    /// Linear value `e` (irradiance / pi, 1 = texture at full brightness) of a stored byte
-    /// value `v = byte / 255`.
+    /// Linear value `e` (irradiance / pi, 1 = texture at full brightness) of a stored
+    /// value `v = byte / 255` read back from filtered data (bilinear lookups, the gather):
+    /// the middle of the byte's interval (see [`Material::interval`]).
     pub fn decode(&self, v: f32) -> f32 {
+        self.decode_exact((v.clamp(0.0, 1.0) + HALF_BYTE).min(1.0))
+    }
+
+    /// `e` of the exact stored fraction `v` (`(v)^gamma 2^overbright`).
+    pub fn decode_exact(&self, v: f32) -> f32 {
         let v = v.clamp(0.0, 1.0);
         let v = if self.lightmap_gamma == 1.0 { v } else { v.powf(self.lightmap_gamma) };
         v * (1u32 << self.overbright_bits.min(8)) as f32
     }
+
+    /// The interval of `e` a stored byte stands for: q3map2 truncates a luxel's float
+    /// value to a byte (a C conversion), so byte `b` is any value in `[b, b + 1)`.
+    /// Without this every texel would read half a byte low: 5% at a byte of 10, which
+    /// real maps' dark areas are full of.
+    pub fn interval(&self, byte: u8) -> (f32, f32) {
+        let b = byte as f32;
+        (self.decode_exact(b / 255.0), self.decode_exact(((b + 1.0) / 255.0).min(256.0 / 255.0)))
+    }
 }
+
+/// A material that emits light in q3map2's compile: `q3map_surfacelight` (from the
+/// material extras `q3_surfacelight` that convert writes).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Emitter {
+    /// q3map2's value (a surface filling a sample's hemisphere adds `0.75 value` bytes).
+    pub value: f32,
+    /// Linear colour, largest channel 1.
+    pub color: [f32; 3],
+    /// Largest extent of one emitting patch, Quake units.
+    pub subdivide: f32,
+    /// Backsplash: fraction (of 7 x the value) and distance (Quake units).
+    pub backsplash: (f32, f32),
+}
+
+/// What the compile of the map recorded (worldspawn keys that convert keeps in the world
+/// node's extras): q3map2's settings where the map says them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Compile {
+    /// `_q3map2_cmdline`, when recorded.
+    pub cmdline: Option<String>,
+    /// `_minlight` times `_color`, bytes per channel.
+    pub minlight: Option<[f32; 3]>,
+    /// `_ambient` (or `ambient`) times `_color`, bytes per channel.
+    pub ambient: Option<[f32; 3]>,
+}
+
+impl Compile {
+    /// The value of a `-switch VALUE` of the light stage of the command line.
+    pub fn switch(&self, name: &str) -> Option<&str> {
+        let light = self.light_stage()?;
+        let mut it = light.split_whitespace();
+        while let Some(t) = it.next() {
+            if t.eq_ignore_ascii_case(name) {
+                return Some(it.next().unwrap_or(""));
+            }
+        }
+        None
+    }
+
+    /// Whether the light stage had `-switch`.
+    pub fn has(&self, name: &str) -> bool {
+        self.light_stage().is_some_and(|l| l.split_whitespace().any(|t| t.eq_ignore_ascii_case(name)))
+    }
+
+    /// The `-light ...` part of the recorded command line (stages are separated by `;`).
+    fn light_stage(&self) -> Option<&str> {
+        self.cmdline.as_deref()?.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))
+    }
+}
+
+/// Half of one byte step, `0.5 / 255`: the offset [`Material::decode`] adds (mirrored in
+/// `shaders/target.wgsl`).
+pub const HALF_BYTE: f32 = 0.5 / 255.0;
 
 /// A point light found in the input (KHR_lights_punctual on a node).
 #[derive(Debug, Clone)]
@@ -91,6 +173,11 @@ pub struct InputLight {
     pub locked: bool,
     /// World matrix of the node's parent (identity for a root node), in f64.
     pub parent_world: glam::DMat4,
+    /// A spot light: unit axis (world) and q3map2's cone, `radius / distance` at the
+    /// edge (extras `q3_radius_by_dist`, else `tan(outerConeAngle)`).
+    pub spot: Option<(Vec3, f32)>,
+    /// A spot's glTF cone half-angles (inner, outer), radians.
+    pub cone: Option<(f32, f32)>,
 }
 
 /// A directional light found in the input (KHR_lights_punctual `directional`).
@@ -172,5 +259,35 @@ pub struct Scene {
     pub origin: glam::DVec3,
     /// Primitives skipped (not triangles, no positions), with why.
     pub skipped: Vec<String>,
+    /// Meters per Quake unit (scene extras `q3_scale`, convert's `--scale`; 0.0254 when
+    /// the file does not say): q3map2's sampling rules are in Quake units.
+    pub units_m: f32,
+    /// The compile's recorded settings.
+    pub compile: Compile,
+}
+
+/// How q3map2 sampled the lightmap, in Quake units (its source: `MapSingleLuxel`,
+/// `LightContributionToSample`, `DEFAULT_INHIBIT_RADIUS`).
+pub mod q3map2 {
+    /// A luxel's sample origin lies this far off the surface, along its normal.
+    pub const SAMPLE_OFFSET_UNITS: f32 = 1.0;
+    /// A shadow ray ignores geometry this close to the sample origin.
+    pub const INHIBIT_RADIUS_UNITS: f32 = 1.5;
+    /// Point and spot lights: the distance in the inverse square is at least this.
+    pub const MIN_DISTANCE_UNITS: f32 = 16.0;
+    /// Point and spot lights ("fast" by default): a contribution of at most this many
+    /// bytes (in the brightest channel) is left out.
+    pub const FALLOFF_TOLERANCE_BYTES: f32 = 1.0;
+    /// A spot light's edge fades over this distance from its cone.
+    pub const SPOT_RAMP_UNITS: f32 = 32.0;
+    /// A spot's cone radius at its target: `radius` (default 64) plus this.
+    pub const SPOT_RADIUS_EXTRA_UNITS: f32 = 16.0;
+    /// Area lights (surface lights): each patch's light origin lies this far in front of
+    /// it; a sample closer to its plane than [`AREA_PUSH_UNITS`] is pushed forward to it
+    /// for the form factor.
+    pub const AREA_ORIGIN_OFFSET_UNITS: f32 = 1.0;
+    pub const AREA_PUSH_UNITS: f32 = 8.0;
+    /// Dirt (ambient occlusion, `-dirt`): ray length, scale and gain defaults.
+    pub const DIRT_DEPTH_UNITS: f32 = 128.0;
 }
 

@@ -1,14 +1,14 @@
-//! Small synthetic scenes for unit tests: a closed box room seen from inside, with a
-//! target rendered by the CPU forward model from known lights.
+//! Small synthetic scenes for unit tests: a closed box room seen from inside.
 
 use glam::{Vec2, Vec3};
 
+use crate::rows::{Row, Rows, Sampling};
 use crate::scene::Mesh;
-use crate::target::Target;
 
-/// A 4 x 2.5 x 3 m box room (normals inward), each wall an `n x n` grid; the target is a
-/// smooth made-up field (tests of the gradient do not need it to be realisable).
-pub fn room(n: usize) -> (Mesh, Target) {
+/// A 4 x 2.5 x 3 m box room (normals inward), each wall an `n x n` grid, with one row per
+/// vertex whose data is a smooth made-up field (tests of the gradient do not need it to
+/// be realisable): intervals of width 0.02, a few censored channels.
+pub fn room(n: usize) -> (Mesh, Rows) {
     let size = Vec3::new(4.0, 2.5, 3.0);
     let mut m = Mesh::default();
     // (origin, u, v) with u x v pointing into the room.
@@ -60,12 +60,25 @@ pub fn room(n: usize) -> (Mesh, Target) {
             area[v as usize] += a / 3.0;
         }
     }
-    let tg = Target {
-        value: m.positions.iter().map(|p| [0.2 + 0.05 * p.x, 0.3 + 0.04 * p.y, 0.25 + 0.03 * p.z]).collect(),
-        albedo: m.positions.iter().map(|p| [0.5 + 0.05 * p.x, 0.6, 0.7 - 0.05 * p.z]).collect(),
-        weight: (0..nv).map(|i| if i % 7 == 0 { [0.0, 1.0, 0.5] } else { [1.0; 3] }).collect(),
-        lower: (0..nv).map(|i| if i % 7 == 0 { [0.4, 0.0, 0.3] } else { [0.0; 3] }).collect(),
-        area,
-    };
-    (m, tg)
+    let (lo, hi) = m.bounds();
+    let mut rows = Rows::new(Sampling::plain((hi - lo).length()));
+    for (i, p) in m.positions.iter().enumerate() {
+        let t = [0.2 + 0.05 * p.x, 0.3 + 0.04 * p.y, 0.25 + 0.03 * p.z];
+        let censored = i % 7 == 0;
+        rows.push(Row {
+            vertex: i as u32,
+            material: 0,
+            texel: [u32::MAX; 3],
+            pos: *p,
+            normal: m.normals[i],
+            albedo: [0.5 + 0.05 * p.x, 0.6, 0.7 - 0.05 * p.z],
+            lo: t,
+            hi: t.map(|v| v + 0.02),
+            weight: if censored { [0.0, 1.0, 0.5] } else { [1.0; 3] },
+            lower: if censored { [0.4, 0.0, 0.3] } else { [0.0; 3] },
+            area: area[i],
+        });
+    }
+    rows.finish();
+    (m, rows)
 }

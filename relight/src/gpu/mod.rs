@@ -1,19 +1,23 @@
-//! The wgpu backend: the problem and the BVH are uploaded once; `trace` runs
+//! The wgpu backend: the rows and the BVH are uploaded once; `trace` runs
 //! `shaders/trace.wgsl` for a batch of light positions and reads the bits back (they are
-//! small: one bit per vertex and light); `evaluate` uploads only the visibility of lights
-//! re-traced since the last call and runs `shaders/forward.wgsl`, whose per-workgroup
-//! partial sums are added on the CPU in f64. Pipelines are built in one place, [`Pipelines`].
+//! small: one bit per row and light); `irradiance` and `gradient` upload only the
+//! visibility of lights re-traced since the last call and run
+//! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
+//! partial sums are reduced by blocks on the device and the blocks added on the CPU in
+//! f64). The target projection's kernel is `shaders/target.wgsl`. Pipelines are built in
+//! one place, [`Pipelines`].
 
 use glam::Vec3;
 use wgpu::util::DeviceExt;
 
 use crate::backend::Backend;
-use crate::bvh::Bvh;
+use crate::trace::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::model::{Eval, Light, Problem, Terms};
+use crate::model::lights::{Light, LightGrad};
 use crate::scene::{Lighting, Scene, Wrap};
-use crate::target::{self, CORNER_FLOATS};
-use crate::visibility::Visibility;
+use crate::rows::projection::{self as target, CORNER_FLOATS};
+use crate::rows::Rows;
+use crate::trace::visibility::Visibility;
 
 const WG: u32 = 64;
 const MAX_GROUPS: u32 = 65_535;
@@ -231,19 +235,14 @@ struct TargetParams {
     pad: [u32; 2],
 }
 
-/// The layout of `Vertex` in `shaders/problem.wgsl`.
+/// The layout of `Row` in `shaders/rows.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct GpuVertex {
+struct GpuRow {
     pos: [f32; 3],
-    area: f32,
+    pad0: f32,
     normal: [f32; 3],
-    pad: f32,
-    albedo: [f32; 4],
-    target: [f32; 4],
-    weight: [f32; 4],
-    lower: [f32; 4],
-    indirect: [f32; 4],
+    pad1: f32,
 }
 
 #[repr(C)]
@@ -253,48 +252,67 @@ struct TraceParams {
     lights: u32,
     words: u32,
     ray_offset: f32,
+    inhibit: f32,
+    pad: [f32; 3],
 }
 
+/// `LightParams` of `shaders/lights.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ForwardParams {
+struct LightParams {
     n: u32,
     k: u32,
     words: u32,
-    stride: u32,
-    ambient: [f32; 4],
-    indirect: [f32; 4],
-    sun_dir: [f32; 4],
-    sun_rgb: [f32; 4],
+    block: u32,
     eps: f32,
-    pad: [f32; 3],
+    falloff: f32,
+    ramp: f32,
+    pad: f32,
 }
+
+/// Workgroups per block of the gradient's second reduction stage.
+const BLOCK: u32 = 256;
 
 struct Pipelines {
     target: wgpu::ComputePipeline,
     trace: wgpu::ComputePipeline,
-    forward: wgpu::ComputePipeline,
+    irradiance: wgpu::ComputePipeline,
+    gradient: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
 }
 
 impl Pipelines {
     fn new(device: &wgpu::Device) -> Pipelines {
-        let problem = include_str!("../../shaders/problem.wgsl");
-        let bvh = include_str!("../../shaders/bvh.wgsl");
-        let make = |label: &str, src: String| {
+        let rows = include_str!("../../../shaders/rows.wgsl");
+        let bvh = include_str!("../../../shaders/bvh.wgsl");
+        let lights = include_str!("../../../shaders/lights.wgsl");
+        let make = |label: &str, src: String, entry: &str, layout: Option<&wgpu::PipelineLayout>| {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(src.into()) });
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(label),
-                layout: None,
+                layout,
                 module: &module,
-                entry_point: Some("main"),
+                entry_point: Some(entry),
                 compilation_options: Default::default(),
                 cache: None,
             })
         };
+        // The gradient's two entry points share one bind group (each uses only part of
+        // it, so the automatic layouts would differ): bindings 0-4 read, 5-6 written.
+        let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry { binding, visibility: wgpu::ShaderStages::COMPUTE, ty, count: None };
+        let storage = |read_only: bool| wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only }, has_dynamic_offset: false, min_binding_size: None };
+        let mut gradient_entries = vec![entry(0, wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None })];
+        gradient_entries.extend((1..=4).map(|b| entry(b, storage(true))));
+        gradient_entries.extend((5..=6).map(|b| entry(b, storage(false))));
+        let gradient_group = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("light gradient"), entries: &gradient_entries });
+        let gradient_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("light gradient"), bind_group_layouts: &[Some(&gradient_group)], immediate_size: 0 });
+        let gradient_src = format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_gradient.wgsl"));
         Pipelines {
-            target: make("target", include_str!("../../shaders/target.wgsl").to_string()),
-            trace: make("trace", format!("{problem}\n{bvh}\n{}", include_str!("../../shaders/trace.wgsl"))),
-            forward: make("forward", format!("{problem}\n{}", include_str!("../../shaders/forward.wgsl"))),
+            target: make("target", include_str!("../../../shaders/target.wgsl").to_string(), "main", None),
+            trace: make("trace", format!("{rows}\n{bvh}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
+            irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
+            gradient: make("light gradient", gradient_src.clone(), "main", Some(&gradient_layout)),
+            reduce: make("light gradient blocks", gradient_src, "reduce_blocks", Some(&gradient_layout)),
         }
     }
 }
@@ -303,10 +321,8 @@ pub struct GpuBackend {
     ctx: Context,
     n: u32,
     words: u32,
-    eps: f32,
-    ray_offset: f32,
-    norm2: f64,
-    verts: wgpu::Buffer,
+    sampling: crate::rows::Sampling,
+    rows: wgpu::Buffer,
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
     /// Visibility uploaded per light slot, and the light position it was traced at.
@@ -322,40 +338,31 @@ fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST })
 }
 
+fn output(device: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: size.max(16), usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false })
+}
+
+/// A dispatch of `groups` workgroups as (x, y) within the 65535 limit per dimension.
+fn grid(groups: u32) -> (u32, u32) {
+    let gx = groups.clamp(1, MAX_GROUPS);
+    (gx, groups.div_ceil(gx).max(1))
+}
+
 impl GpuBackend {
-    /// Uploads the problem and the BVH to `ctx`'s device.
-    pub fn new(ctx: Context, pb: &Problem, bvh: &Bvh) -> Result<GpuBackend> {
-        let verts: Vec<GpuVertex> = (0..pb.len())
-            .map(|i| GpuVertex {
-                pos: pb.pos[i].to_array(),
-                area: pb.area[i],
-                normal: pb.normal[i].to_array(),
-                pad: 0.0,
-                albedo: [pb.albedo[i][0], pb.albedo[i][1], pb.albedo[i][2], 0.0],
-                target: [pb.target[i][0], pb.target[i][1], pb.target[i][2], 0.0],
-                weight: [pb.weight[i][0], pb.weight[i][1], pb.weight[i][2], 0.0],
-                lower: [pb.lower[i][0], pb.lower[i][1], pb.lower[i][2], 0.0],
-                indirect: [pb.indirect[i][0], pb.indirect[i][1], pb.indirect[i][2], 0.0],
-            })
-            .collect();
-        let max = ctx.max_binding();
-        let vb: &[u8] = bytemuck::cast_slice(&verts);
-        if vb.len() > max || bvh.tris.len() * 48 > max {
-            return Err(Error::Gpu(format!("the problem ({} vertices, {} triangles) exceeds the adapter's storage binding limit of {max} bytes", pb.len(), bvh.tris.len())));
-        }
-        if pb.len().div_ceil(WG as usize) > MAX_GROUPS as usize {
-            return Err(Error::Gpu(format!("{} vertices exceed one dispatch ({} workgroups of {WG})", pb.len(), MAX_GROUPS)));
-        }
+    pub fn new(ctx: Context, rows: &Rows, bvh: &Bvh) -> Result<GpuBackend> {
         let d = &ctx.device;
+        let gr: Vec<GpuRow> = (0..rows.len()).map(|i| GpuRow { pos: rows.pos[i].to_array(), pad0: 0.0, normal: rows.normal[i].to_array(), pad1: 0.0 }).collect();
+        let max = ctx.max_binding();
+        if gr.len() * std::mem::size_of::<GpuRow>() > max || bvh.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max {
+            return Err(Error::Gpu(format!("the rows or the BVH exceed the adapter's storage binding limit of {max} bytes")));
+        }
         Ok(GpuBackend {
-            verts: storage(d, "verts", vb),
+            rows: storage(d, "rows", bytemuck::cast_slice(&gr)),
             nodes: storage(d, "nodes", bytemuck::cast_slice(&bvh.nodes)),
             tris: storage(d, "tris", bytemuck::cast_slice(&bvh.tris)),
-            n: pb.len() as u32,
-            words: pb.len().div_ceil(32).max(1) as u32,
-            eps: pb.eps,
-            ray_offset: pb.ray_offset,
-            norm2: pb.norm2,
+            n: rows.len() as u32,
+            words: rows.len().div_ceil(32).max(1) as u32,
+            sampling: rows.sampling,
             vis: None,
             vis_capacity: 0,
             uploaded: Vec::new(),
@@ -363,17 +370,18 @@ impl GpuBackend {
         })
     }
 
-    fn try_trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
+    fn try_trace(&mut self, lights: &[(Vec3, f32)]) -> Result<Vec<Vec<u32>>> {
         let d = &self.ctx.device;
         let mut out = Vec::with_capacity(lights.len());
         // Batches bounded by the second dispatch dimension.
         for batch in lights.chunks(MAX_GROUPS as usize) {
-            let pos: Vec<[f32; 4]> = batch.iter().map(|p| p.extend(0.0).to_array()).collect();
+            // xyz: the position; w: the reach (a finite stand-in for no limit).
+            let pos: Vec<[f32; 4]> = batch.iter().map(|(p, r)| p.extend(r.min(f32::MAX)).to_array()).collect();
             let lb = storage(d, "light_pos", bytemuck::cast_slice(&pos));
             let size = (batch.len() * self.words as usize * 4) as u64;
-            let bits = d.create_buffer(&wgpu::BufferDescriptor { label: Some("bits"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
             // wgpu zero-initialises new buffers: every bit starts cleared.
-            let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.ray_offset };
+            let bits = output(d, "bits", size);
+            let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.sampling.ray_offset, inhibit: self.sampling.inhibit, pad: [0.0; 3] };
             let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("trace params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
             let layout = self.ctx.pipes.trace.get_bind_group_layout(0);
             let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -381,7 +389,7 @@ impl GpuBackend {
                 layout: &layout,
                 entries: &[
                     wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: self.verts.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 2, resource: self.nodes.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 3, resource: self.tris.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 4, resource: lb.as_entire_binding() },
@@ -402,13 +410,17 @@ impl GpuBackend {
         Ok(out)
     }
 
-    fn try_evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
+    /// Uploads the visibility of lights re-traced since the last call; returns the buffer.
+    fn upload_visibility(&mut self, vis: &Visibility, k: usize) -> Result<()> {
         let d = &self.ctx.device;
-        let k = lights.len();
         let wbytes = self.words as usize * 4;
         if self.vis.is_none() || self.vis_capacity < k.max(1) {
             let cap = k.max(1).next_power_of_two();
-            self.vis = Some(d.create_buffer(&wgpu::BufferDescriptor { label: Some("vis"), size: (cap * wbytes) as u64, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false }));
+            let size = (cap * wbytes) as u64;
+            if size > self.ctx.max_binding() as u64 {
+                return Err(Error::Gpu(format!("the visibility of {k} lights exceeds the adapter's storage binding limit")));
+            }
+            self.vis = Some(d.create_buffer(&wgpu::BufferDescriptor { label: Some("vis"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false }));
             self.vis_capacity = cap;
             self.uploaded.clear();
         }
@@ -420,102 +432,148 @@ impl GpuBackend {
                 self.uploaded[j] = Some(vis.traced_at[j]);
             }
         }
-        let mut lb: Vec<[f32; 4]> = Vec::with_capacity(2 * k);
+        Ok(())
+    }
+
+    fn params(&self, k: usize) -> LightParams {
+        LightParams { n: self.n, k: k as u32, words: self.words, block: BLOCK, eps: self.sampling.eps, falloff: self.sampling.falloff, ramp: self.sampling.spot_ramp, pad: 0.0 }
+    }
+
+    fn light_buffer(&self, lights: &[Light]) -> wgpu::Buffer {
+        let mut lb: Vec<[f32; 4]> = Vec::with_capacity(3 * lights.len());
         for l in lights {
-            lb.push(l.pos.extend(0.0).to_array());
-            lb.push([l.rgb[0], l.rgb[1], l.rgb[2], 0.0]);
+            let (flag, axis, rbd) = match &l.spot {
+                Some(s) => (1.0, s.axis, s.radius_by_dist),
+                None => (0.0, Vec3::ZERO, 0.0),
+            };
+            lb.push(l.pos.extend(flag).to_array());
+            lb.push([l.rgb[0], l.rgb[1], l.rgb[2], rbd]);
+            lb.push(axis.extend(0.0).to_array());
         }
-        let lbuf = storage(d, "lights", bytemuck::cast_slice(&lb));
-        let groups = self.n.div_ceil(WG).max(1);
-        let stride = 8 * (k as u32 + 2);
-        let size = groups as u64 * stride as u64 * 4;
-        let partial = d.create_buffer(&wgpu::BufferDescriptor { label: Some("partial"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false });
-        let params = ForwardParams { n: self.n, k: k as u32, words: self.words, stride, ambient: [terms.ambient[0], terms.ambient[1], terms.ambient[2], 0.0], indirect: [terms.indirect[0], terms.indirect[1], terms.indirect[2], 0.0],
-            sun_dir: terms.sun.map_or([0.0; 4], |s| s.to_sun.extend(1.0).to_array()),
-            sun_rgb: terms.sun.map_or([0.0; 4], |s| [s.rgb[0], s.rgb[1], s.rgb[2], 0.0]),
-            eps: self.eps,
-            pad: [0.0; 3],
-        };
-        // The sun's bits (a single word when there is none, never read then).
-        let sun_words: Vec<u32> = match (&vis.sun, terms.sun) {
-            (Some((_, b)), Some(_)) => b.clone(),
-            _ => vec![0],
-        };
-        let sbuf = storage(d, "sun_vis", bytemuck::cast_slice(&sun_words));
-        let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("forward params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
-        let layout = self.ctx.pipes.forward.get_bind_group_layout(0);
+        storage(&self.ctx.device, "lights", bytemuck::cast_slice(&lb))
+    }
+
+    fn try_irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
+        let k = lights.len();
+        self.upload_visibility(vis, k)?;
+        let d = &self.ctx.device;
+        let lbuf = self.light_buffer(lights);
+        let size = self.n as u64 * 16;
+        let out = output(d, "irradiance", size);
+        let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("light params"), contents: bytemuck::bytes_of(&self.params(k)), usage: wgpu::BufferUsages::UNIFORM });
+        let layout = self.ctx.pipes.irradiance.get_bind_group_layout(0);
         let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("forward"),
+            label: Some("light irradiance"),
             layout: &layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: self.verts.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: vbuf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: partial.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: sbuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_ref().expect("uploaded").as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: out.as_entire_binding() },
             ],
         });
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.ctx.pipes.forward);
+            pass.set_pipeline(&self.ctx.pipes.irradiance);
             pass.set_bind_group(0, &bg, &[]);
-            pass.dispatch_workgroups(groups, 1, 1);
+            let (gx, gy) = grid(self.n.div_ceil(WG));
+            pass.dispatch_workgroups(gx, gy, 1);
         }
-        let data = self.ctx.read_back(&partial, size, enc)?;
-        let p: &[f32] = bytemuck::cast_slice(&data);
-        let mut ev = Eval { grad: vec![[0.0; 6]; k], ..Default::default() };
-        let mut num = 0.0f64;
-        for g in 0..groups as usize {
-            let b = &p[g * stride as usize..(g + 1) * stride as usize];
-            for j in 0..k {
-                for q in 0..6 {
-                    ev.grad[j][q] += b[8 * j + q] as f64;
-                }
-            }
-            for q in 0..6 {
-                ev.grad_sun[q] += b[8 * k + q] as f64;
-            }
-            let t = &b[8 * (k + 1)..];
-            ev.f += t[0] as f64;
-            num += t[1] as f64;
-            for c in 0..3 {
-                ev.grad_ambient[c] += t[2 + c] as f64;
-                ev.grad_indirect[c] += t[5 + c] as f64;
-            }
-        }
-        Ok(ev_with_error(ev, num, self.norm2))
+        let data = self.ctx.read_back(&out, size, enc)?;
+        let v: &[[f32; 4]] = bytemuck::cast_slice(&data);
+        Ok(v.iter().take(self.n as usize).map(|e| [e[0], e[1], e[2]]).collect())
     }
-}
 
-fn ev_with_error(mut ev: Eval, num: f64, norm2: f64) -> Eval {
-    ev.rel_error = if norm2 > 0.0 { (num / norm2).sqrt() } else { 0.0 };
-    ev
+    fn try_gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
+        let k = lights.len();
+        self.upload_visibility(vis, k)?;
+        let d = &self.ctx.device;
+        let lbuf = self.light_buffer(lights);
+        let rho4: Vec<[f32; 4]> = rho.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
+        let rbuf = storage(d, "rho", bytemuck::cast_slice(&rho4));
+        let groups = self.n.div_ceil(WG).max(1);
+        let per = k as u64 * 12;
+        let psize = groups as u64 * per * 4;
+        let nblocks = groups.div_ceil(BLOCK) as u64;
+        let bsize = nblocks * per * 4;
+        if psize > self.ctx.max_binding() as u64 {
+            return Err(Error::Gpu(format!("the gradient's partial sums ({} MB) exceed the adapter's storage binding limit", psize >> 20)));
+        }
+        let partial = output(d, "partial", psize);
+        let blocks = output(d, "blocks", bsize);
+        let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("light params"), contents: bytemuck::bytes_of(&self.params(k)), usage: wgpu::BufferUsages::UNIFORM });
+        let entries = |layout: &wgpu::BindGroupLayout, label: &str| {
+            d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(label),
+                layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_ref().expect("uploaded").as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: rbuf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: partial.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 6, resource: blocks.as_entire_binding() },
+                ],
+            })
+        };
+        let bg1 = entries(&self.ctx.pipes.gradient.get_bind_group_layout(0), "light gradient");
+        let bg2 = entries(&self.ctx.pipes.reduce.get_bind_group_layout(0), "light gradient blocks");
+        let mut enc = d.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.ctx.pipes.gradient);
+            pass.set_bind_group(0, &bg1, &[]);
+            let (gx, gy) = grid(groups);
+            pass.dispatch_workgroups(gx, gy, 1);
+            pass.set_pipeline(&self.ctx.pipes.reduce);
+            pass.set_bind_group(0, &bg2, &[]);
+            let (gx, gy) = grid((nblocks * per).div_ceil(WG as u64) as u32);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let data = self.ctx.read_back(&blocks, bsize, enc)?;
+        let b: &[f32] = bytemuck::cast_slice(&data);
+        let mut out = vec![LightGrad::default(); k];
+        for blk in 0..nblocks as usize {
+            for (j, g) in out.iter_mut().enumerate() {
+                let o = blk * per as usize + j * 12;
+                let v = |q: usize| b[o + q] as f64;
+                g.add(&LightGrad { pos: [v(0), v(1), v(2)], rgb: [v(3), v(4), v(5)], axis: [v(6), v(7), v(8)], radius_by_dist: v(9) });
+            }
+        }
+        Ok(out)
+    }
 }
 
 impl Backend for GpuBackend {
     fn name(&self) -> String {
         format!("wgpu ({}, {})", self.ctx.info.name, self.ctx.info.backend)
     }
-    fn trace(&mut self, lights: &[Vec3]) -> Result<Vec<Vec<u32>>> {
+    fn trace(&mut self, lights: &[(Vec3, f32)]) -> Result<Vec<Vec<u32>>> {
         self.try_trace(lights)
     }
-    fn evaluate(&mut self, vis: &Visibility, lights: &[Light], terms: Terms) -> Result<Eval> {
-        self.try_evaluate(vis, lights, terms)
+    fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
+        self.try_irradiance(vis, lights)
+    }
+    fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
+        self.try_gradient(vis, lights, rho)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::Spot;
     use crate::testutil::room;
 
-    /// The wgpu kernels agree with the CPU reference (visibility bits exactly; objective and
-    /// gradient within 1e-4 relative). Needs a wgpu adapter: CI has Mesa's lavapipe.
+    /// The wgpu kernels agree with the CPU reference: visibility bits exactly; the
+    /// lights' irradiance and gradients (points and a spot, with the falloff cut) within
+    /// 1e-4 relative. Needs a wgpu adapter: CI has Mesa's lavapipe.
     #[test]
     fn wgpu_agrees_with_cpu() {
-        let (mut mesh, mut tg) = room(8);
+        let (mut mesh, mut rows) = room(8);
         // A pillar in the middle so that some shadow rays are blocked.
         let base = mesh.positions.len() as u32;
         for p in [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]] {
@@ -525,59 +583,49 @@ mod tests {
             mesh.uv1.push(glam::Vec2::ZERO);
             mesh.colors.push([1.0; 3]);
             mesh.v_material.push(0);
-            tg.area.push(0.0);
-            tg.albedo.push([0.0; 3]);
-            tg.value.push([0.0; 3]);
-            tg.weight.push([0.0; 3]);
-            tg.lower.push([0.0; 3]);
         }
         mesh.reweld();
         mesh.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
         mesh.tri_material.extend([0, 0]);
         mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
-        let (lo, hi) = mesh.bounds();
-        let mut pb = Problem::new(&mesh, &tg, (hi - lo).length());
-        for (i, o) in pb.indirect.iter_mut().enumerate() {
-            *o = [0.02 * (i % 4) as f32, 0.05, 0.01 * (i % 7) as f32];
-        }
+        rows.sampling.falloff = 0.02;
+        rows.sampling.inhibit = 0.01;
         let bvh = Bvh::build(&mesh);
         let lights = vec![
-            Light { pos: Vec3::new(2.0, 1.2, 0.5), rgb: [2.0, 1.5, 1.0] },
-            Light { pos: Vec3::new(3.1, 2.0, 2.4), rgb: [0.7, 1.2, 1.9] },
-            Light { pos: Vec3::new(0.6, 0.4, 2.7), rgb: [1.0, 1.0, 1.0] },
+            Light::point(Vec3::new(2.0, 1.2, 0.5), [2.0, 1.5, 1.0]),
+            Light::point(Vec3::new(3.1, 2.0, 2.4), [0.7, 1.2, 1.9]),
+            Light { pos: Vec3::new(0.6, 2.2, 2.7), rgb: [1.0, 1.0, 1.0], spot: Some(Spot { axis: Vec3::new(0.3, -1.0, -0.2).normalize(), radius_by_dist: 0.8 }) },
         ];
-        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &pb, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
-        let positions: Vec<Vec3> = lights.iter().map(|l| l.pos).collect();
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        // The third light traced only to 2.5 m: farther rows have no bit.
+        let positions: Vec<(Vec3, f32)> = lights.iter().enumerate().map(|(j, l)| (l.pos, if j == 2 { 2.5 } else { f32::INFINITY })).collect();
         let g_bits = gpu.trace(&positions).unwrap();
-        let c_bits: Vec<Vec<u32>> = positions.iter().map(|&p| crate::visibility::trace_light(&bvh, &pb, p)).collect();
+        let c_bits: Vec<Vec<u32>> = positions.iter().map(|&(p, r)| crate::trace::visibility::trace_light(&bvh, &rows, p, r)).collect();
         assert_eq!(g_bits, c_bits, "visibility bits differ");
         let blocked = c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>();
         assert!(blocked > 0, "the pillar casts a shadow");
         let mut vis = Visibility::default();
-        vis.update(&lights, 0.0, pb.len(), &mut |p| Ok(p.iter().map(|&q| crate::visibility::trace_light(&bvh, &pb, q)).collect())).unwrap();
-        let terms = Terms { ambient: [0.01, 0.02, 0.03], indirect: [0.7, 1.0, 1.3], sun: Some(crate::model::Sun { to_sun: Vec3::new(-0.4, 0.8, 0.3).normalize(), rgb: [2.0, 1.0, 0.5] }) };
-        // Every triangle counts as sky here: the sun reaches every row that faces it.
-        let sky = vec![true; mesh.triangles.len()];
-        vis.update_sun(terms.sun.map(|s| s.to_sun), 0.0, pb.len(), &mut |dir| crate::visibility::trace_sun(&bvh, &pb, dir, &sky));
-        let c = crate::model::evaluate(&pb, &vis, &lights, terms);
-        let g = gpu.evaluate(&vis, &lights, terms).unwrap();
-        let rel = |a: f64, b: f64, scale: f64| (a - b).abs() / scale.max(1e-30);
-        assert!(rel(c.f, g.f, c.f) < 1e-4, "objective {} vs {}", c.f, g.f);
-        assert!(rel(c.rel_error, g.rel_error, c.rel_error) < 1e-4);
-        for j in 0..lights.len() {
-            let scale = c.grad[j].iter().map(|v| v.abs()).fold(0.0, f64::max);
-            for q in 0..6 {
-                assert!(rel(c.grad[j][q], g.grad[j][q], scale) < 1e-4, "light {j} gradient {q}: cpu {} wgpu {}", c.grad[j][q], g.grad[j][q]);
+        vis.update(&lights, 0.0, &rows.sampling, rows.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
+        let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };
+        let (ce, ge) = (cpu.irradiance(&vis, &lights).unwrap(), gpu.irradiance(&vis, &lights).unwrap());
+        let scale = ce.iter().flat_map(|e| e.iter()).copied().fold(0.0f32, f32::max);
+        assert!(scale > 0.0);
+        for (a, b) in ce.iter().zip(&ge) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() <= 1e-4 * scale, "irradiance {a:?} vs {b:?}");
             }
         }
-        for k in 0..3 {
-            assert!(rel(c.grad_ambient[k], g.grad_ambient[k], c.grad_ambient[k].abs()) < 1e-4);
-            assert!(rel(c.grad_indirect[k], g.grad_indirect[k], c.grad_indirect[k].abs()) < 1e-4, "indirect {k}: cpu {} wgpu {}", c.grad_indirect[k], g.grad_indirect[k]);
+        let rho: Vec<[f32; 3]> = (0..rows.len()).map(|i| [0.3 - 0.01 * (i % 50) as f32, 0.2, -0.1 + 0.005 * (i % 40) as f32]).collect();
+        let (cg, gg) = (cpu.gradient(&vis, &lights, &rho).unwrap(), gpu.gradient(&vis, &lights, &rho).unwrap());
+        for j in 0..lights.len() {
+            let flat = |g: &LightGrad| [g.pos, g.rgb, g.axis].concat().into_iter().chain([g.radius_by_dist]).collect::<Vec<f64>>();
+            let (a, b) = (flat(&cg[j]), flat(&gg[j]));
+            let scale = a.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            assert!(scale > 0.0);
+            for q in 0..a.len() {
+                assert!((a[q] - b[q]).abs() <= 1e-4 * scale, "light {j} gradient {q}: cpu {} wgpu {}", a[q], b[q]);
+            }
         }
-        let scale = c.grad_sun.iter().map(|v| v.abs()).fold(0.0, f64::max);
-        assert!(scale > 0.0);
-        for q in 0..6 {
-            assert!(rel(c.grad_sun[q], g.grad_sun[q], scale) < 1e-4, "sun gradient {q}: cpu {} wgpu {}", c.grad_sun[q], g.grad_sun[q]);
-        }
+        assert!(cg[2].axis.iter().any(|v| *v != 0.0) && cg[2].radius_by_dist != 0.0, "the spot's cone has a gradient");
     }
 }

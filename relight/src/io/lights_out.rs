@@ -1,11 +1,18 @@
 //! Writing the relit scene: the input glTF unchanged (lightmap still in its slot, so
-//! relight can run again on its output) plus `KHR_lights_punctual` point lights.
+//! relight can run again on its output) plus `KHR_lights_punctual` point and spot lights
+//! and the emission of the fitted surface lights and sky.
 //!
 //! The input's JSON is edited as a tree, never rebuilt, so whatever we do not understand
-//! survives. Point lights of the input are replaced: with `--init input` each fitted light
-//! updates its own node and light entry (the node's local translation is solved from its
-//! parent's world matrix); other input point lights lose their light (the node stays, as
-//! an empty). New lights get new root nodes `light_000`, ...
+//! survives. Point and spot lights of the input are replaced: with `--init input` each
+//! fitted light updates its own node and light entry (the node's local translation and
+//! rotation are solved from its parent's world matrix); other input lights lose their
+//! light (the node stays, as an empty). New lights get new root nodes `light_000`, ...
+//!
+//! A spot is written with q3map2's cone as `extras.q3_radius_by_dist` (read back exactly)
+//! and, for renderers, `outerConeAngle = atan(radius_by_dist)` with the inner angle where
+//! q3map2's soft edge (a fixed width, 32 units) begins at the distance the axis meets the
+//! scene. Emission: `emissiveFactor` (colour, largest channel 1) and
+//! `KHR_materials_emissive_strength` (radiance, W/(m^2 sr); only above 1).
 //!
 //! Containers. The output is always self-contained in its own folder, so that relight
 //! (which reads only relative URIs inside the glTF's folder) and Blender can open it
@@ -33,12 +40,49 @@ pub struct OutLight {
     pub position: DVec3,
     /// Radiant intensity per channel, W/sr.
     pub rgb: [f64; 3],
+    /// A spot's cone.
+    pub spot: Option<OutSpot>,
     /// The input light (node index, parent world matrix) this one continues, if any.
     pub source_node: Option<(usize, DMat4)>,
     pub name: String,
     /// Statistics and flags for `extras` (merged into the light's extras).
     pub extras: Value,
     pub locked: bool,
+}
+
+/// A spot's cone (q3map2's: see [`crate::model::lights`]).
+#[derive(Debug, Clone)]
+pub struct OutSpot {
+    /// Unit axis, world.
+    pub axis: DVec3,
+    pub radius_by_dist: f64,
+    /// Width of the soft edge, m.
+    pub ramp_m: f64,
+    /// Where the axis meets the scene, m (where the inner angle is taken).
+    pub typical_distance_m: f64,
+}
+
+impl OutSpot {
+    /// glTF's (inner, outer) cone half-angles, radians.
+    pub fn cone_angles(&self) -> (f64, f64) {
+        let outer = self.radius_by_dist.max(1e-6).atan().clamp(1e-3, std::f64::consts::FRAC_PI_2 - 1e-3);
+        let d = self.typical_distance_m.max(1e-3);
+        let inner = ((self.radius_by_dist * d - self.ramp_m).max(0.0) / d).atan().min(outer * 0.999);
+        (inner, outer)
+    }
+}
+
+/// Everything `write` adds to the input.
+pub struct Output<'a> {
+    pub lights: &'a [OutLight],
+    pub sun: Option<&'a OutSun>,
+    /// Replace the input's directional lights by `sun` (the fit decided about the sun);
+    /// otherwise they are kept as they are.
+    pub replace_suns: bool,
+    /// Material index (as in the input's `materials`) and its emitted radiance per
+    /// channel, W/(m^2 sr).
+    pub emissive: &'a [(usize, [f64; 3])],
+    pub scene_extras: Value,
 }
 
 /// A fitted sun to write as a KHR_lights_punctual directional light.
@@ -118,7 +162,7 @@ fn external_uris(json: &Value) -> Vec<(&'static str, usize, String)> {
 
 /// Reads the file an external URI of the input names.
 fn read_resource(input: &Path, in_dir: &Path, uri: &str) -> Result<(PathBuf, Vec<u8>)> {
-    let rel = PathBuf::from(crate::gltf_in::relative_uri(uri).map_err(|why| Error::input(input, format!("refused URI {:?} ({why})", uri.escape_debug().to_string())))?);
+    let rel = PathBuf::from(crate::io::gltf_in::relative_uri(uri).map_err(|why| Error::input(input, format!("refused URI {:?} ({why})", uri.escape_debug().to_string())))?);
     let p = in_dir.join(&rel);
     let bytes = std::fs::read(&p).map_err(|e| Error::Io { path: p.display().to_string(), source: e })?;
     Ok((rel, bytes))
@@ -193,20 +237,54 @@ fn light_json(l: &OutLight) -> Value {
     if l.locked {
         extras.insert("locked".into(), Value::Bool(true));
     }
-    json!({
+    let mut v = json!({
         "name": l.name,
         "type": "point",
         "color": color,
         "intensity": m * LM_PER_W,
         "range": range_m(m),
-        "extras": Value::Object(extras),
-    })
+    });
+    if let Some(s) = &l.spot {
+        let (inner, outer) = s.cone_angles();
+        v["type"] = json!("spot");
+        v["spot"] = json!({ "innerConeAngle": inner, "outerConeAngle": outer });
+        extras.insert("q3_radius_by_dist".into(), json!(s.radius_by_dist));
+    }
+    v["extras"] = Value::Object(extras);
+    v
 }
 
-/// Writes `input` plus `lights` to `output`.
-/// Writes the relit scene. With `replace_suns`, the input's directional lights are replaced
-/// by `sun` (the fit decided about the sun); otherwise they are kept as they are.
-pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutSun>, replace_suns: bool, scene_extras: Value) -> Result<()> {
+/// The rotation that turns a node's -Z (where glTF lights shine) onto `axis`.
+fn rotation_to(axis: DVec3) -> glam::DQuat {
+    glam::DQuat::from_rotation_arc(DVec3::NEG_Z, axis.normalize_or(DVec3::NEG_Y))
+}
+
+/// Sets material `m`'s emission to `radiance` (per channel).
+fn set_emission(m: &mut Value, radiance: [f64; 3]) {
+    let peak = radiance.iter().copied().fold(0.0f64, f64::max);
+    let Some(o) = m.as_object_mut() else { return };
+    if !(peak > 0.0) {
+        o.remove("emissiveFactor");
+        return;
+    }
+    let ext = o.entry("extensions").or_insert_with(|| json!({}));
+    if peak <= 1.0 {
+        o.insert("emissiveFactor".into(), json!(radiance));
+        if let Some(e) = o.get_mut("extensions").and_then(Value::as_object_mut) {
+            e.remove("KHR_materials_emissive_strength");
+        }
+    } else {
+        ext["KHR_materials_emissive_strength"] = json!({ "emissiveStrength": peak });
+        o.insert("emissiveFactor".into(), json!(radiance.map(|c| c / peak)));
+    }
+    if o.get("extensions").and_then(Value::as_object).is_some_and(|e| e.is_empty()) {
+        o.remove("extensions");
+    }
+}
+
+/// Writes `input` plus `out` to `output`.
+pub fn write(input: &Path, output: &Path, out: &Output) -> Result<()> {
+    let (lights, sun, replace_suns, scene_extras) = (out.lights, out.sun, out.replace_suns, out.scene_extras.clone());
     if q3gltf_convert::output::same_file(output, input) {
         return Err(Error::Usage(format!("{}: the output would overwrite the input", output.display())));
     }
@@ -225,7 +303,7 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
     let mut new_lights = Vec::new();
     for (i, l) in old_lights.iter().enumerate() {
         let kind = l.get("type").and_then(Value::as_str);
-        if kind != Some("point") && !(replace_suns && kind == Some("directional")) {
+        if kind != Some("point") && kind != Some("spot") && !(replace_suns && kind == Some("directional")) {
             remap[i] = Some(new_lights.len());
             new_lights.push(l.clone());
         }
@@ -262,6 +340,11 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
                     }
                 } else {
                     n["translation"] = json!([local.x, local.y, local.z]);
+                    if let Some(s) = &l.spot {
+                        let (_, parent_rot, _) = parent.to_scale_rotation_translation();
+                        let q = parent_rot.inverse() * rotation_to(s.axis);
+                        n["rotation"] = json!([q.x, q.y, q.z, q.w]);
+                    }
                 }
                 n["name"] = json!(l.name);
                 let ext = n.as_object_mut().unwrap().entry("extensions").or_insert_with(|| json!({}));
@@ -272,11 +355,16 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
             }
             _ => {
                 new_roots.push(nodes.len());
-                nodes.push(json!({
+                let mut node = json!({
                     "name": l.name,
                     "translation": [l.position.x, l.position.y, l.position.z],
                     "extensions": attach,
-                }));
+                });
+                if let Some(s) = &l.spot {
+                    let q = rotation_to(s.axis);
+                    node["rotation"] = json!([q.x, q.y, q.z, q.w]);
+                }
+                nodes.push(node);
             }
         }
     }
@@ -297,6 +385,23 @@ pub fn write(input: &Path, output: &Path, lights: &[OutLight], sun: Option<&OutS
         let q = glam::DQuat::from_rotation_arc(DVec3::Z, sun.to_sun.normalize_or(DVec3::Y));
         new_roots.push(nodes.len());
         nodes.push(json!({ "name": sun.name, "rotation": [q.x, q.y, q.z, q.w], "extensions": { "KHR_lights_punctual": { "light": index } } }));
+    }
+    if !out.emissive.is_empty() {
+        let materials = root.get_mut("materials").and_then(Value::as_array_mut);
+        if let Some(materials) = materials {
+            for &(mi, radiance) in out.emissive {
+                if let Some(m) = materials.get_mut(mi) {
+                    set_emission(m, radiance);
+                }
+            }
+        }
+        let used_strength = root.get("materials").and_then(Value::as_array).is_some_and(|ms| ms.iter().any(|m| m.get("extensions").and_then(|e| e.get("KHR_materials_emissive_strength")).is_some()));
+        let used = root.entry("extensionsUsed").or_insert_with(|| json!([]));
+        if let Some(u) = used.as_array_mut() {
+            if used_strength && !u.iter().any(|v| v == "KHR_materials_emissive_strength") {
+                u.push(json!("KHR_materials_emissive_strength"));
+            }
+        }
     }
     let scene_index = root.get("scene").and_then(Value::as_u64).unwrap_or(0) as usize;
     let scenes = root.entry("scenes").or_insert_with(|| json!([{ "nodes": [] }]));

@@ -28,9 +28,10 @@
 
 use glam::{DVec2, Vec2, Vec3};
 
-use crate::model::Problem;
+use crate::rows::{Row, Rows, Sampling};
+use crate::trace::bvh::Bvh;
 use crate::scene::{Lighting, Scene};
-use crate::target::{Target, CENSOR_BYTE};
+use crate::rows::projection::{Target, CENSOR_BYTE};
 use crate::texel;
 
 /// A texel centre counts as inside a triangle down to this barycentric coordinate.
@@ -54,25 +55,28 @@ pub struct LuxelStats {
     pub triangles_without_luxel: usize,
     /// Lightmapped triangles refused: degenerate or absurd lightmap UVs.
     pub triangles_refused: usize,
+    /// Luxels left out because their sample point is buried in solid geometry (see
+    /// [`drop_buried`]): q3map2 filled them from elsewhere and the game never shows them.
+    pub buried: usize,
 }
 
-/// The luxel-space problem and where its rows came from.
+/// The luxel rows and how they were made.
 #[derive(Debug, Clone)]
 pub struct Luxels {
-    /// Luxel rows first (`0..texels.len()`), then the vertex-lit rows.
-    pub problem: Problem,
-    /// Texture index and texel `(x, y)` of each luxel row.
-    pub texels: Vec<[u32; 3]>,
+    /// Luxel rows first (those with a texel), then the vertex-lit rows.
+    pub rows: Rows,
     pub stats: LuxelStats,
 }
 
-/// Builds the problem: luxel rows for lightmapped triangles, and the rows of `vertex_target`
-/// (a per-vertex projection of the same mesh) for vertex-lit materials.
-pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxels {
+/// Builds the rows: one per lightmap texel of the lightmapped triangles, and the rows of
+/// `vertex_target` (a per-vertex projection of the same mesh) for vertex-lit materials;
+/// with q3map2's sampling for the scene's units ([`Sampling::q3map2`]).
+pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxels {
     let mesh = &scene.mesh;
-    let mut pb = Problem::empty(scene_diagonal);
+    let ob = scene.materials.iter().find(|m| m.lighting == Lighting::Lightmap).map_or(2, |m| m.overbright_bits);
+    let mut pb = Rows::new(Sampling::q3map2(scene_diagonal, scene.units_m, ob));
+    let sample_offset = crate::scene::q3map2::SAMPLE_OFFSET_UNITS * scene.units_m;
     let mut st = LuxelStats::default();
-    let mut texels = Vec::new();
     // Which texels are taken, per lightmap texture (allocated for lightmaps only).
     let mut claimed: Vec<Option<Vec<bool>>> = vec![None; scene.textures.len()];
     for (t, tri) in mesh.triangles.iter().enumerate() {
@@ -134,8 +138,9 @@ pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Lu
                 }
                 taken[y * w + x] = true;
                 let bf = b.map(|v| v as f32);
-                let pos = pa * bf[0] + pb_ * bf[1] + pc * bf[2];
                 let normal = (na * bf[0] + nb * bf[1] + nc * bf[2]).try_normalize().unwrap_or(face_normal);
+                // q3map2's sample origin: the surface point pushed off along the normal.
+                let pos = pa * bf[0] + pb_ * bf[1] + pc * bf[2] + normal * sample_offset;
                 // Albedo: mean over the texel's square, mapped affinely to TEXCOORD_0.
                 let mut alb = [0.0f32; 3];
                 let k = ALBEDO_SAMPLES;
@@ -157,18 +162,21 @@ pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Lu
                 let albedo = [0, 1, 2].map(|ch| alb[ch] / (k * k) as f32 * f[ch]);
                 let o = (y * w + x) * 4;
                 let bytes = [lm.rgba8[o], lm.rgba8[o + 1], lm.rgba8[o + 2]];
-                let value = [0, 1, 2].map(|ch| albedo[ch] * mat.decode(bytes[ch] as f32 / 255.0));
-                let censored = bytes.contains(&CENSOR_BYTE);
-                if !pos.is_finite() || !value.iter().all(|v| v.is_finite()) {
+                let iv = bytes.map(|b| mat.interval(b));
+                let lo = [0, 1, 2].map(|ch| albedo[ch] * iv[ch].0);
+                let hi = [0, 1, 2].map(|ch| albedo[ch] * iv[ch].1);
+                let censored = bytes.iter().any(|&b| b >= CENSOR_BYTE);
+                if !pos.is_finite() || !hi.iter().all(|v| v.is_finite()) {
                     continue;
                 }
+                let base = Row { vertex: u32::MAX, material: mesh.tri_material[t], texel: [lm_index as u32, x as u32, y as u32], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area: texel_area };
                 if censored {
+                    // Every channel of a clamped texel is a lower bound (q3map2 kept its hue).
                     st.censored += 1;
-                    pb.push(u32::MAX, pos, normal, albedo, [0.0; 3], [0.0; 3], value, texel_area);
+                    pb.push(Row { lo: [0.0; 3], hi: [0.0; 3], weight: [0.0; 3], lower: lo, ..base });
                 } else {
-                    pb.push(u32::MAX, pos, normal, albedo, value, [1.0; 3], [0.0; 3], texel_area);
+                    pb.push(base);
                 }
-                texels.push([lm_index as u32, x as u32, y as u32]);
                 st.luxels += 1;
             }
         }
@@ -184,12 +192,70 @@ pub fn problem(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Lu
         let has = (0..3).any(|c| vertex_target.weight[v][c] > 0.0 || vertex_target.lower[v][c] > 0.0);
         if has {
             let t = vertex_target;
-            pb.push(v as u32, mesh.positions[v], mesh.normals[v], t.albedo[v], t.value[v], t.weight[v], t.lower[v], t.area[v]);
+            pb.push(Row { vertex: v as u32, material: mesh.v_material[v], texel: [u32::MAX; 3], pos: mesh.positions[v], normal: mesh.normals[v], albedo: t.albedo[v], lo: t.value[v], hi: t.hi[v], weight: t.weight[v], lower: t.lower[v], area: t.area[v] });
             st.vertex_rows += 1;
         }
     }
     pb.finish();
-    Luxels { problem: pb, texels, stats: st }
+    Luxels { rows: pb, stats: st }
+}
+
+/// Probe directions of [`buried`], in the frame of the row's normal `(t1, t2, n)`: the
+/// normal itself, then 8 directions 60 degrees from it.
+fn probe_directions() -> [[f32; 3]; 9] {
+    let (s, c) = (60f32.to_radians().sin(), 60f32.to_radians().cos());
+    let mut d = [[0.0, 0.0, 1.0]; 9];
+    for (k, v) in d.iter_mut().enumerate().skip(1) {
+        let a = std::f32::consts::TAU * (k - 1) as f32 / 8.0;
+        *v = [s * a.cos(), s * a.sin(), c];
+    }
+    d
+}
+
+/// Whether a sample point at `x` (normal `n`) is buried in solid geometry: most rays into
+/// its hemisphere meet the back of a surface first. q3map2 tests whether a luxel's sample
+/// point lies in a solid leaf of the BSP ("luxels occluded", `MapSingleLuxel`) and fills
+/// such luxels from elsewhere; the glTF has no solids, so the test is the geometry's
+/// orientation: a point outside every solid sees front faces or open space. Faces of
+/// double-sided materials count as front faces from either side.
+pub fn buried(mesh: &crate::scene::Mesh, double_sided: &[bool], bvh: &Bvh, x: Vec3, n: Vec3, reach: f32) -> bool {
+    let (t1, t2) = n.any_orthonormal_pair();
+    let mut back = 0;
+    let dirs = probe_directions();
+    for (k, d) in dirs.iter().enumerate() {
+        let dir = t1 * d[0] + t2 * d[1] + n * d[2];
+        if let Some((_, t)) = bvh.first_hit(x, dir * reach, 1.0) {
+            let t = t as usize;
+            let [a, b, c] = mesh.triangles[t].map(|i| mesh.positions[i as usize]);
+            let two_sided = double_sided.get(mesh.tri_material[t] as usize).copied().unwrap_or(false);
+            if !two_sided && (b - a).cross(c - a).dot(dir) > 0.0 {
+                back += 1;
+            }
+        }
+        // Decided once the rest cannot change the majority.
+        let left = dirs.len() - k - 1;
+        if back * 2 > dirs.len() || (back + left) * 2 <= dirs.len() {
+            break;
+        }
+    }
+    back * 2 > dirs.len()
+}
+
+/// Removes the luxel rows whose sample point is [`buried`]; returns how many.
+pub fn drop_buried(lx: &mut Luxels, scene: &Scene, bvh: &Bvh) -> usize {
+    use rayon::prelude::*;
+    let (lo, hi) = scene.mesh.bounds();
+    let reach = 2.0 * (hi - lo).length().max(1e-3);
+    let double_sided: Vec<bool> = scene.materials.iter().map(|m| m.double_sided).collect();
+    let pb = &lx.rows;
+    let keep: Vec<bool> = (0..pb.len()).into_par_iter().map(|i| pb.texel[i][0] == u32::MAX || !buried(&scene.mesh, &double_sided, bvh, pb.pos[i], pb.normal[i], reach)).collect();
+    let dropped = keep.iter().filter(|k| !**k).count();
+    if dropped > 0 {
+        lx.rows.retain(&keep);
+        lx.stats.luxels -= dropped;
+        lx.stats.buried += dropped;
+    }
+    dropped
 }
 
 #[cfg(test)]
@@ -227,29 +293,30 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
-        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() }
+        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default() }
     }
 
     #[test]
     fn every_covered_texel_is_one_row_at_its_sample_point() {
         let scene = floor_scene();
-        let lx = problem(&scene, &Target::empty(4), 3.0);
-        let pb = &lx.problem;
+        let lx = rows(&scene, &Target::empty(4), 3.0);
+        let pb = &lx.rows;
         assert_eq!(lx.stats.luxels, 45, "9 x 5 texel centres lie on the quad (edges included, the diagonal shared)");
         assert_eq!(pb.len(), 45);
         assert_eq!(lx.stats.censored, 1);
         let total: f32 = pb.area.iter().sum();
         // 45 luxels of 1/16 m^2 each: the quad's 2 m^2 plus its half-texel rim.
         assert!((total - 45.0 / 16.0).abs() < 1e-4, "area {total}");
-        for (i, &[tex, x, y]) in lx.texels.iter().enumerate() {
+        for (i, &[tex, x, y]) in pb.texel.iter().enumerate() {
             assert_eq!(tex, 0);
-            // Texel (x, y) samples the point 0.25 m per texel from the corner at texel (1, 2).
-            let want = Vec3::new((x as f32 - 1.0) * 0.25, 0.0, (y as f32 - 2.0) * 0.25);
+            // Texel (x, y) samples the point 0.25 m per texel from the corner at texel (1, 2),
+            // one Quake unit off the surface (q3map2's sample origin).
+            let want = Vec3::new((x as f32 - 1.0) * 0.25, 0.0254, (y as f32 - 2.0) * 0.25);
             assert!((pb.pos[i] - want).length() < 1e-5, "texel ({x}, {y}) at {:?}, expected {want:?}", pb.pos[i]);
             assert_eq!(pb.normal[i], Vec3::Y);
             assert_eq!(pb.albedo[i], [0.5, 0.25, 1.0]);
-            // decode(b) = b / 255 * 4 (overbright 2), times the albedo.
+            // Byte b stands for [b, b + 1) / 255 * 4 (overbright 2), times the albedo.
             let e = [10.0 * x as f32, 20.0 * y as f32, 7.0].map(|b| b / 255.0 * 4.0);
             if (x, y) == (4, 3) {
                 assert_eq!(pb.weight[i], [0.0; 3], "a texel with a channel at 255 is a lower bound");
@@ -257,11 +324,12 @@ mod tests {
             } else {
                 assert_eq!(pb.weight[i], [1.0; 3]);
                 for c in 0..3 {
-                    assert!((pb.target[i][c] - pb.albedo[i][c] * e[c]).abs() < 1e-6, "texel ({x}, {y}) channel {c}");
+                    assert!((pb.lo[i][c] - pb.albedo[i][c] * e[c]).abs() < 1e-6, "texel ({x}, {y}) channel {c}");
+                    assert!((pb.hi[i][c] - pb.lo[i][c] - pb.albedo[i][c] * 4.0 / 255.0).abs() < 1e-6);
                 }
             }
         }
-        let mut seen = lx.texels.clone();
+        let mut seen = pb.texel.clone();
         seen.sort();
         seen.dedup();
         assert_eq!(seen.len(), 45, "no texel is claimed twice");
@@ -274,9 +342,9 @@ mod tests {
         let uv = scene.mesh.uv1[0];
         scene.mesh.uv1[1] = uv;
         scene.mesh.uv1[3] = Vec2::new(-1e5, 1e5);
-        let lx = problem(&scene, &Target::empty(4), 3.0);
+        let lx = rows(&scene, &Target::empty(4), 3.0);
         assert_eq!(lx.stats.triangles_refused, 2);
-        assert_eq!(lx.problem.len(), 0);
+        assert_eq!(lx.rows.len(), 0);
     }
 
     #[test]
@@ -288,7 +356,7 @@ mod tests {
         scene.mesh.uv1[0] = Vec2::new(0.0, 0.0);
         scene.mesh.uv1[1] = Vec2::new(1.0, 1.0);
         scene.mesh.uv1[2] = Vec2::new(1.0, 1.0 - 1e-5);
-        let lx = problem(&scene, &Target::empty(4), 3.0);
+        let lx = rows(&scene, &Target::empty(4), 3.0);
         assert!(lx.stats.triangles_refused >= 1, "{:?}", lx.stats);
     }
 }

@@ -1,34 +1,28 @@
-//! Indirect light, gathered once from the data.
+//! The data's own bounced light, gathered once: for the light placement only.
 //!
-//! q3map2 (with `-bounce`) bakes light that reached a surface after reflecting off other
-//! surfaces. Point lights alone cannot explain it; a renderer with global illumination
-//! (Cycles, or an engine's GI) adds it back from the fitted lights. So the model adds the
-//! indirect radiance that the *baked* scene sends to each row, and the lights are fitted
-//! to the direct part only:
+//! The model's bounce ([`crate::model::bounce`]) is the light of the model's own
+//! emitters reflected by the scene, through an operator `K` between rows. The placement
+//! ([`crate::init::auto`]) works on a subsample of the rows, where `K` cannot be formed
+//! (a ray's landing row is rarely in the subsample); there the bounce is estimated from
+//! the data instead, once, independent of the lights:
 //!
 //! ```text
-//! E_ind(x_i) = integral over the hemisphere of L(hit(x_i, w)) cos(theta) dw
-//!           ~= pi / M * sum_m L(hit_m)        (M cosine-weighted directions)
-//! o_i        = albedo_i / pi * E_ind(x_i) = albedo_i * mean_m L(hit_m)
+//! o_i = albedo_i / pi * E_ind(x_i) ~= albedo_i * mean_m L(hit_m)      (M cosine-weighted rays)
 //! ```
 //!
 //! where `L(hit)` is the data's radiance where the ray lands: `albedo x decode(lightmap)`
-//! (or the decoded vertex colour on vertex-lit surfaces) at the hit's texture coordinates,
-//! the same quantity the target is made of. Because the data holds every bounce, `o` is
-//! the whole indirect field (all orders), computed once, independent of the lights; the
-//! model scales it by a fitted `k_c >= 0` per channel ([`crate::model::Terms`]), which
-//! stays only where it lowers the error (scenes baked without bounces keep it off).
-//! Rays that escape, or land on the back of a surface, or on a surface without baked
-//! lighting, bring nothing.
-//!
-//! The directions are stratified (`s x s` cells of the unit square, Malley's method), with
-//! a jitter hashed from the row and the cell, so the result is deterministic.
+//! (or the decoded vertex colour on vertex-lit surfaces). Because the data holds every
+//! bounce, `o` stands for all orders; the model scales it by a fitted `k_g` per channel
+//! ([`crate::model::Model::gathered`]) so that lights are placed for the light it leaves
+//! unexplained. Rays that escape, land on the back of a surface, or on a surface without
+//! baked lighting, bring nothing.
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use crate::bvh::Bvh;
-use crate::model::Problem;
+use crate::trace::bvh::Bvh;
+use crate::model::bounce::{barycentric, cosine_direction};
+use crate::rows::Rows;
 use crate::scene::{Lighting, Scene};
 use crate::texel;
 
@@ -74,54 +68,23 @@ pub fn data_radiance(scene: &Scene, t: usize, b: [f32; 3], dir: Vec3) -> Option<
     Some([0, 1, 2].map(|c| albedo[c] * f[c] * e[c]))
 }
 
-/// Barycentric coordinates of `p` (on or near the triangle's plane), clamped into it.
-fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
-    let (v0, v1, v2) = (b - a, c - a, p - a);
-    let (d00, d01, d11) = (v0.dot(v0), v0.dot(v1), v1.dot(v1));
-    let (d20, d21) = (v2.dot(v0), v2.dot(v1));
-    let den = d00 * d11 - d01 * d01;
-    if !(den.abs() > 0.0) {
-        return [1.0 / 3.0; 3];
-    }
-    let v = ((d11 * d20 - d01 * d21) / den).clamp(0.0, 1.0);
-    let w = ((d00 * d21 - d01 * d20) / den).clamp(0.0, 1.0 - v);
-    [1.0 - v - w, v, w]
-}
-
-/// A uniform number in [0, 1) from two integers (a 32-bit integer hash).
-fn hash01(a: u32, b: u32) -> f32 {
-    let mut x = a.wrapping_mul(0x9E37_79B9) ^ b.wrapping_mul(0x85EB_CA6B).rotate_left(13);
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7FEB_352D);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846C_A68B);
-    x ^= x >> 16;
-    (x >> 8) as f32 / (1u32 << 24) as f32
-}
-
-/// Fills `pb.indirect` with `o_i` (see the module docs) using `rays_per_row` rays per row
-/// (rounded up to a square).
-pub fn gather(scene: &Scene, bvh: &Bvh, pb: &mut Problem, rays_per_row: usize) -> GatherStats {
+/// `o_i` of every row (see the module docs) using `rays_per_row` rays per row (rounded up
+/// to a square).
+pub fn gather(scene: &Scene, bvh: &Bvh, pb: &Rows, rays_per_row: usize) -> (Vec<[f32; 3]>, GatherStats) {
     let s = (rays_per_row.max(1) as f64).sqrt().ceil() as usize;
     let m = s * s;
     let (lo, hi) = scene.mesh.bounds();
     let reach = 2.0 * (hi - lo).length().max(1e-3);
-    let offset = pb.ray_offset;
+    let offset = pb.sampling.ray_offset;
     let rows: Vec<([f32; 3], u64)> = (0..pb.len())
         .into_par_iter()
         .map(|i| {
             let n = pb.normal[i];
             let o = pb.pos[i] + n * offset;
-            let (t1, t2) = n.any_orthonormal_pair();
             let mut sum = [0.0f64; 3];
             let mut hits = 0u64;
             for cell in 0..m {
-                let u1 = ((cell / s) as f32 + hash01(i as u32, 2 * cell as u32)) / s as f32;
-                let u2 = ((cell % s) as f32 + hash01(i as u32, 2 * cell as u32 + 1)) / s as f32;
-                // Malley: uniform on the disc, lifted to the hemisphere (cosine-weighted).
-                let r = u1.sqrt();
-                let phi = std::f32::consts::TAU * u2;
-                let d = (t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize_or_zero();
+                let d = cosine_direction(n, i as u32, cell, s);
                 let Some((t, tri)) = bvh.first_hit(o, d * reach, 1.0) else { continue };
                 let p = o + d * (reach * t);
                 let [a, b, c] = scene.mesh.triangles[tri as usize].map(|v| scene.mesh.positions[v as usize]);
@@ -137,16 +100,18 @@ pub fn gather(scene: &Scene, bvh: &Bvh, pb: &mut Problem, rays_per_row: usize) -
         })
         .collect();
     let mut st = GatherStats { rows: pb.len(), rays_per_row: m, rays: (pb.len() * m) as u64, hits_with_data: 0 };
-    for (i, (o, h)) in rows.into_iter().enumerate() {
-        pb.indirect[i] = o;
+    let mut out = Vec::with_capacity(rows.len());
+    for (o, h) in rows {
+        out.push(o);
         st.hits_with_data += h;
     }
-    st
+    (out, st)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rows::{Row, Sampling};
     use crate::scene::{Material, Mesh, Texture, Wrap};
 
     /// A row at the centre of the floor of a closed box whose other five walls all show the
@@ -178,27 +143,28 @@ mod tests {
         quad(&mut m, Vec3::X, Vec3::Z, Vec3::Y, 0);
         m.tri_source = (0..m.triangles.len() as u32).collect();
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
         let dark = Material { name: "floor".into(), lighting: Lighting::None, ..lit.clone() };
         let tex = Texture { width: 1, height: 1, rgba8: vec![255; 4], wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
-        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
+        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default() };
         let bvh = Bvh::build(&scene.mesh);
-        let mut pb = Problem::empty(2.0);
-        pb.push(u32::MAX, Vec3::new(0.5, 0.0, 0.5), Vec3::Y, [0.5, 0.8, 1.0], [0.0; 3], [1.0; 3], [0.0; 3], 1.0);
-        pb.finish();
-        let st = gather(&scene, &bvh, &mut pb, 16);
+        let rows = |pos: Vec3, n: Vec3, albedo: [f32; 3]| {
+            let mut r = Rows::new(Sampling::plain(2.0));
+            r.push(Row { vertex: u32::MAX, material: 1, texel: [u32::MAX; 3], pos, normal: n, albedo, lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0 });
+            r.finish();
+            r
+        };
+        let (o, st) = gather(&scene, &bvh, &rows(Vec3::new(0.5, 0.0, 0.5), Vec3::Y, [0.5, 0.8, 1.0]), 16);
         assert_eq!(st.hits_with_data, 16);
-        // decode(v) = v * 4 (overbright 2): L = (1, 2, 0.5).
-        let want = [0.5 * 1.0, 0.8 * 2.0, 1.0 * 0.5];
+        // decode(v) = (v + 1/2 byte) * 4 (overbright 2): L = (1, 2, 0.5) + 2/255.
+        let half = 2.0 / 255.0;
+        let want = [0.5 * (1.0 + half), 0.8 * (2.0 + half), 1.0 * (0.5 + half)];
         for c in 0..3 {
-            assert!((pb.indirect[0][c] - want[c]).abs() < 1e-5, "{:?} vs {want:?}", pb.indirect[0]);
+            assert!((o[0][c] - want[c]).abs() < 1e-5, "{:?} vs {want:?}", o[0]);
         }
         // Seen from outside (the back of the walls), nothing comes in.
-        let mut out = Problem::empty(2.0);
-        out.push(u32::MAX, Vec3::new(0.5, 2.0, 0.5), -Vec3::Y, [1.0; 3], [0.0; 3], [1.0; 3], [0.0; 3], 1.0);
-        out.finish();
-        gather(&scene, &bvh, &mut out, 16);
-        assert_eq!(out.indirect[0], [0.0; 3]);
+        let (o, _) = gather(&scene, &bvh, &rows(Vec3::new(0.5, 2.0, 0.5), -Vec3::Y, [1.0; 3]), 16);
+        assert_eq!(o[0], [0.0; 3]);
     }
 
     /// Half of a row's hemisphere sees a lit wall: the cosine-weighted estimate tends to
@@ -221,17 +187,19 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false };
-        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new() };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default() };
         let bvh = Bvh::build(&scene.mesh);
-        let mut pb = Problem::empty(10.0);
+        let mut pb = Rows::new(Sampling::plain(10.0));
         for k in 0..200 {
-            pb.push(u32::MAX, Vec3::new(0.5, 0.0, k as f32 * 0.01), Vec3::Y, [1.0; 3], [0.0; 3], [1.0; 3], [0.0; 3], 1.0);
+            pb.push(Row { vertex: u32::MAX, material: 0, texel: [u32::MAX; 3], pos: Vec3::new(0.5, 0.0, k as f32 * 0.01), normal: Vec3::Y, albedo: [1.0; 3], lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0 });
         }
         pb.finish();
-        gather(&scene, &bvh, &mut pb, 64);
-        // L = 1 on the wall; the row 0.5 m away sees it under nearly the full half-space.
-        let mean: f32 = pb.indirect.iter().map(|o| o[0]).sum::<f32>() / pb.len() as f32;
-        assert!((mean - 0.5).abs() < 0.01, "mean indirect {mean}, expected 0.5");
+        let (o, _) = gather(&scene, &bvh, &pb, 64);
+        // L = 1 on the wall (a quarter byte-value times 4, plus the half byte); the row 0.5 m
+        // away sees it under nearly the full half-space.
+        let mean: f32 = o.iter().map(|o| o[0]).sum::<f32>() / pb.len() as f32;
+        let l = 1.0 + 2.0 / 255.0;
+        assert!((mean - 0.5 * l).abs() < 0.01, "mean gathered {mean}, expected {}", 0.5 * l);
     }
 }

@@ -5,6 +5,11 @@
 //! Layout: an interior node's left child is the next node; `right_or_first` is its right
 //! child; a leaf (`count > 0`) holds triangles `right_or_first .. right_or_first + count`
 //! of [`Bvh::tris`], each stored as `(v0, e1 = v1 - v0, e2 = v2 - v0)` for Moeller-Trumbore.
+//!
+//! The hit test is exact. (q3map2 clips every triangle into its BSP leaves and tests
+//! the pieces with a 1% barycentric slack; taking that slack on whole triangles instead
+//! made the sun fixture worse, 0.0645 against 0.0000 relative error: a test of ours that
+//! matches q3map2's pieces is not worth their reconstruction.)
 
 use glam::Vec3;
 
@@ -61,10 +66,25 @@ impl Aabb {
 }
 
 impl Bvh {
-    /// Builds over every non-degenerate triangle of the mesh.
+    /// Builds over every non-degenerate triangle of the mesh, with exact hit tests.
     pub fn build(mesh: &Mesh) -> Bvh {
+        Bvh::build_where(mesh, |_| true)
+    }
+
+    /// Builds over the triangles whose material blocks light
+    /// ([`crate::scene::Material::casts_shadow`]): the occluders of every shadow ray.
+    pub fn occluders(scene: &crate::scene::Scene) -> Bvh {
+        let casts: Vec<bool> = scene.materials.iter().map(|m| m.casts_shadow).collect();
+        Bvh::build_where(&scene.mesh, |t| casts.get(scene.mesh.tri_material[t] as usize).copied().unwrap_or(true))
+    }
+
+    /// Builds over the non-degenerate triangles `t` with `keep(t)`.
+    pub fn build_where(mesh: &Mesh, keep: impl Fn(usize) -> bool) -> Bvh {
         let mut items: Vec<(u32, Aabb, Vec3)> = Vec::with_capacity(mesh.triangles.len());
         for (t, tri) in mesh.triangles.iter().enumerate() {
+            if !keep(t) {
+                continue;
+            }
             let [a, b, c] = tri.map(|i| mesh.positions[i as usize]);
             if (b - a).cross(c - a).length_squared() <= 0.0 {
                 continue;
@@ -92,8 +112,9 @@ impl Bvh {
         Bvh { nodes, tris, tri_index }
     }
 
-    /// True when the segment `o + s d`, `s` in `(0, t_max)`, hits a triangle.
-    pub fn occluded(&self, o: Vec3, d: Vec3, t_max: f32) -> bool {
+    /// True when the segment `o + s d`, `s` in `(t_min, t_max)` (`t_min >= 0`), hits a
+    /// triangle.
+    pub fn occluded(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> bool {
         if self.tris.is_empty() {
             return false;
         }
@@ -111,7 +132,7 @@ impl Bvh {
                 let first = node.right_or_first as usize;
                 for tri in &self.tris[first..first + node.count as usize] {
                     if let Some(t) = intersect(tri, o, d) {
-                        if t > 0.0 && t < t_max {
+                        if t > t_min && t < t_max {
                             return true;
                         }
                     }
@@ -127,6 +148,11 @@ impl Bvh {
 
     /// Nearest hit `(t, triangle index in the mesh)` along `o + s d`, `s` in `(0, t_max)`.
     pub fn first_hit(&self, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, u32)> {
+        self.first_hit_after(o, d, 0.0, t_max)
+    }
+
+    /// Nearest hit along `o + s d` with `s` in `(t_min, t_max)`.
+    pub fn first_hit_after(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(f32, u32)> {
         let inv = d.recip();
         let mut best: Option<(f32, u32)> = None;
         let mut limit = t_max;
@@ -143,7 +169,7 @@ impl Bvh {
                 let first = node.right_or_first as usize;
                 for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
                     if let Some(t) = intersect(tri, o, d) {
-                        if t > 0.0 && t < limit {
+                        if t > t_min && t < limit {
                             limit = t;
                             best = Some((t, self.tri_index[first + k]));
                         }
@@ -208,15 +234,15 @@ fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
 
 /// Moeller-Trumbore, two-sided. Returns the ray parameter of the hit.
 pub fn intersect(tri: &Tri, o: Vec3, d: Vec3) -> Option<f32> {
-    let e1 = Vec3::from_slice(&tri.e1);
-    let e2 = Vec3::from_slice(&tri.e2);
+    let e1 = Vec3::from_slice(&tri.e1[..3]);
+    let e2 = Vec3::from_slice(&tri.e2[..3]);
     let p = d.cross(e2);
     let det = e1.dot(p);
     if det == 0.0 || !det.is_finite() {
         return None;
     }
     let inv = 1.0 / det;
-    let s = o - Vec3::from_slice(&tri.v0);
+    let s = o - Vec3::from_slice(&tri.v0[..3]);
     let u = s.dot(p) * inv;
     if !(0.0..=1.0).contains(&u) {
         return None;

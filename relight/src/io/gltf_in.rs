@@ -382,6 +382,26 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             overbright_bits: ex.get("q3_overbright_bits").and_then(Value::as_u64).map(|v| v.min(8) as u32).or(scene_ob).unwrap_or(DEFAULT_OVERBRIGHT_BITS),
             lightmap_gamma: ex.get("q3_lightmap_gamma").and_then(Value::as_f64).filter(|g| g.is_finite() && *g > 0.0).unwrap_or(1.0) as f32,
             sky,
+            double_sided: m.double_sided(),
+            casts_shadow: ex.get("q3_casts_shadow").and_then(Value::as_bool).unwrap_or(m.alpha_mode() != gltf::material::AlphaMode::Blend),
+            emitter: emitter_of(&ex),
+            emission: {
+                let s = m.emissive_strength().filter(|s| s.is_finite() && *s >= 0.0).unwrap_or(1.0);
+                m.emissive_factor().map(|c| if c.is_finite() { (c * s).max(0.0) } else { 0.0 })
+            },
+            sky_lights: ex
+                .get("q3_skylight")
+                .and_then(Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|p| {
+                            let c = p.get("color").and_then(Value::as_array).filter(|c| c.len() == 3).map(|c| [0, 1, 2].map(|k| c[k].as_f64().unwrap_or(1.0).clamp(0.0, 1.0) as f32)).unwrap_or([1.0; 3]);
+                            Some((p.get("value")?.as_f64()? as f32, p.get("iterations")?.as_u64()?.min(1024) as u32, c))
+                        })
+                        .filter(|(v, it, _)| v.is_finite() && *v > 0.0 && *it >= 2)
+                        .collect()
+                })
+                .unwrap_or_default(),
         });
     }
     let default_material = materials.len();
@@ -394,12 +414,18 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         overbright_bits: scene_ob.unwrap_or(DEFAULT_OVERBRIGHT_BITS),
         lightmap_gamma: 1.0,
         sky: false,
+        double_sided: false,
+        casts_shadow: true,
+        emitter: None,
+        sky_lights: Vec::new(),
+        emission: [0.0; 3],
     });
 
     let mut mesh = Mesh::default();
     let mut lights = Vec::new();
     let mut suns = Vec::new();
     let mut skipped = Vec::new();
+    let mut compile = crate::scene::Compile::default();
     let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
         Some(s) => s.nodes().collect(),
         None => doc.nodes().collect(),
@@ -430,7 +456,20 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
                     suns.push(InputSun { node: node.index(), name: node.name().or(light.name()).unwrap_or("").to_string(), to_sun, color: light.color(), intensity_lux: light.intensity(), parent_world: parent });
                 }
             }
-            if let gltf::khr_lights_punctual::Kind::Point = light.kind() {
+            let spot = match light.kind() {
+                gltf::khr_lights_punctual::Kind::Spot { outer_cone_angle, .. } => {
+                    let axis = world.transform_vector3(-DVec3::Z).normalize_or_zero().as_vec3();
+                    let rbd = extras_of(light.extras()).get("q3_radius_by_dist").and_then(Value::as_f64).map(|v| v as f32).unwrap_or(outer_cone_angle.clamp(1e-3, 1.5).tan());
+                    (axis != Vec3::ZERO && axis.is_finite() && rbd.is_finite() && rbd > 0.0).then_some((axis, rbd))
+                }
+                _ => None,
+            };
+            let cone = match light.kind() {
+                gltf::khr_lights_punctual::Kind::Spot { inner_cone_angle, outer_cone_angle } if spot.is_some() => Some((inner_cone_angle.clamp(0.0, outer_cone_angle), outer_cone_angle)),
+                _ => None,
+            };
+            let point_like = matches!(light.kind(), gltf::khr_lights_punctual::Kind::Point) || spot.is_some();
+            if point_like {
                 let ex = extras_of(node.extras());
                 let lex = extras_of(light.extras());
                 let locked = ex.get("locked").and_then(Value::as_bool).or_else(|| lex.get("locked").and_then(Value::as_bool)).unwrap_or(false);
@@ -443,8 +482,14 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
                     intensity_cd: light.intensity(),
                     locked,
                     parent_world: parent,
+                    spot,
+                    cone,
                 });
             }
+        }
+        let ex = extras_of(node.extras());
+        if ex.get("classname").and_then(Value::as_str) == Some("worldspawn") {
+            compile = compile_of(&ex);
         }
         let Some(m) = node.mesh() else { continue };
         // convert's "sky" node (Blender keeps the name, adding ".001" on a clash).
@@ -538,7 +583,40 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     mesh.reweld();
     lights.sort_by_key(|l| l.node);
     suns.sort_by_key(|s| s.node);
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped })
+    let units_m = scene_extras.get("q3_scale").and_then(Value::as_f64).filter(|s| s.is_finite() && *s > 1e-6 && *s < 1e3).unwrap_or(q3gltf_convert::units::DEFAULT_SCALE) as f32;
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile })
+}
+
+/// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).
+fn emitter_of(ex: &Value) -> Option<crate::scene::Emitter> {
+    let s = ex.get("q3_surfacelight")?;
+    let f = |v: &Value| v.as_f64().filter(|x| x.is_finite()).map(|x| x as f32);
+    let value = f(s.get("value")?)?.max(0.0);
+    let color = s.get("color").and_then(Value::as_array).filter(|a| a.len() == 3).map(|a| [0, 1, 2].map(|k| f(&a[k]).unwrap_or(1.0).clamp(0.0, 1.0))).unwrap_or([1.0; 3]);
+    let subdivide = s.get("subdivide").and_then(f).filter(|v| *v > 0.0).unwrap_or(999.0);
+    let backsplash = s.get("backsplash").and_then(Value::as_array).filter(|a| a.len() == 2).map(|a| (f(&a[0]).unwrap_or(0.0).clamp(0.0, 1.0), f(&a[1]).unwrap_or(0.0).clamp(0.0, 1e4))).unwrap_or((0.05, 23.0));
+    (value > 0.0).then_some(crate::scene::Emitter { value, color, subdivide: subdivide.min(1e6), backsplash })
+}
+
+/// The compile settings recorded in worldspawn's keys (convert copies them into the world
+/// node's extras): q3map2 reads `_minlight`, `_ambient` (or `ambient`) and `_color` so.
+fn compile_of(ex: &Value) -> crate::scene::Compile {
+    let s = |k: &str| ex.get(k).and_then(Value::as_str);
+    let num = |k: &str| s(k).and_then(|v| v.trim().parse::<f32>().ok()).filter(|v| v.is_finite());
+    let mut color = s("_color")
+        .and_then(|c| {
+            let v: Vec<f32> = c.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+            (v.len() == 3 && v.iter().all(|x| x.is_finite())).then(|| [v[0], v[1], v[2]])
+        })
+        .unwrap_or([1.0; 3]);
+    if color.iter().map(|c| c * c).sum::<f32>() == 0.0 {
+        color = [1.0; 3];
+    }
+    crate::scene::Compile {
+        cmdline: s("_q3map2_cmdline").map(str::to_string),
+        minlight: num("_minlight").filter(|v| *v > 0.0).map(|v| color.map(|c| c * v)),
+        ambient: num("_ambient").or_else(|| num("ambient")).filter(|v| *v > 0.0).map(|v| color.map(|c| c * v)),
+    }
 }
 
 /// Vertices without a usable normal get the area-weighted normal of their triangles.

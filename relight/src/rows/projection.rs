@@ -25,15 +25,18 @@
 use glam::Vec2;
 use rayon::prelude::*;
 
-use crate::scene::{Lighting, Scene};
+use crate::rows::{Row, Rows, Sampling};
+use crate::scene::{Lighting, Mesh, Scene};
 use crate::texel;
 
 /// Floats per triangle corner in the per-triangle sums (see the module docs).
 pub const CORNER_FLOATS: usize = 13;
 /// Largest quadrature order per triangle edge (`m`): at most `m^2 = 1024` samples.
 pub const MAX_ORDER: u32 = 32;
-/// A channel stored at or above this byte value is censored (q3map2 clamped it).
-pub const CENSOR_BYTE: u8 = 255;
+/// A channel stored at or above this byte value is censored (q3map2 clamped it). q3map2
+/// scales an overflowing luxel so its largest channel is 255.0, and the float-to-byte
+/// truncation of that product often stores 254: both are clamped values.
+pub const CENSOR_BYTE: u8 = 254;
 
 /// Per-vertex data the forward model and the objective need.
 #[derive(Debug, Clone, Default)]
@@ -42,8 +45,12 @@ pub struct Target {
     pub area: Vec<f32>,
     /// Projected linear albedo.
     pub albedo: Vec<[f32; 3]>,
-    /// Target radiance (same unit as the model's `albedo * E / pi`).
+    /// Target radiance (same unit as the model's `albedo * E / pi`): the lower end of
+    /// the data's interval ([`crate::rows`]).
     pub value: Vec<[f32; 3]>,
+    /// Upper end of the interval: `value` itself for a projected lightmap (an average),
+    /// the byte's upper end for a vertex colour.
+    pub hi: Vec<[f32; 3]>,
     /// Two-sided weight per channel, in [0, 1].
     pub weight: Vec<[f32; 3]>,
     /// Lower bound per channel where the data was censored (weight `1 - w`).
@@ -53,7 +60,7 @@ pub struct Target {
 impl Target {
     /// A target of `n` vertices, none of which carries data.
     pub fn empty(n: usize) -> Target {
-        Target { area: vec![0.0; n], albedo: vec![[0.0; 3]; n], value: vec![[0.0; 3]; n], weight: vec![[0.0; 3]; n], lower: vec![[0.0; 3]; n] }
+        Target { area: vec![0.0; n], albedo: vec![[0.0; 3]; n], value: vec![[0.0; 3]; n], hi: vec![[0.0; 3]; n], weight: vec![[0.0; 3]; n], lower: vec![[0.0; 3]; n] }
     }
 }
 
@@ -141,7 +148,7 @@ pub fn triangle_sums(scene: &Scene, t: usize, out: &mut [f32; 3 * CORNER_FLOATS]
                 // q3map2 scales an overflowing texel down keeping its hue: when one channel
                 // is at 255, every channel of the texel is a lower bound.
                 let near = texel::nearest(tx, uv1.x, uv1.y);
-                let censored = near[..3].contains(&CENSOR_BYTE);
+                let censored = near[..3].iter().any(|&b| b >= CENSOR_BYTE);
                 (e, [censored; 3])
             }
             None => ([0.0; 3], [false; 3]),
@@ -198,6 +205,7 @@ pub fn gather(scene: &Scene, sums: &[f32], samples: u64) -> (Target, TargetStats
         area: vec![0.0; nv],
         albedo: vec![[0.0; 3]; nv],
         value: vec![[0.0; 3]; nv],
+        hi: vec![[0.0; 3]; nv],
         weight: vec![[0.0; 3]; nv],
         lower: vec![[0.0; 3]; nv],
     };
@@ -221,6 +229,7 @@ pub fn gather(scene: &Scene, sums: &[f32], samples: u64) -> (Target, TargetStats
                     let ws = a[3 + c];
                     if ws > 0.0 {
                         tg.value[v][c] = (a[c] / ws) as f32;
+                        tg.hi[v][c] = tg.value[v][c];
                     }
                     tg.weight[v][c] = (ws / den).clamp(0.0, 1.0) as f32;
                     let rest = den - ws;
@@ -235,13 +244,15 @@ pub fn gather(scene: &Scene, sums: &[f32], samples: u64) -> (Target, TargetStats
                 let col = mesh.colors[v];
                 let clamped = col.iter().any(|&x| x * 255.0 >= CENSOR_BYTE as f32 - 0.5);
                 for c in 0..3 {
-                    let e = mat.decode(col[c]) as f64;
-                    let r = (albedo[c] * e) as f32;
+                    // The colour's byte stands for an interval, as a lightmap texel does.
+                    let (lo, hi) = mat.interval((col[c].clamp(0.0, 1.0) * 255.0).round() as u8);
+                    let (lo, hi) = ((albedo[c] * lo as f64) as f32, (albedo[c] * hi as f64) as f32);
                     if clamped {
-                        tg.lower[v][c] = r;
+                        tg.lower[v][c] = lo;
                         censored = true;
                     } else {
-                        tg.value[v][c] = r;
+                        tg.value[v][c] = lo;
+                        tg.hi[v][c] = hi;
                         tg.weight[v][c] = 1.0;
                     }
                 }
@@ -265,4 +276,29 @@ pub fn gather(scene: &Scene, sums: &[f32], samples: u64) -> (Target, TargetStats
 pub fn project_cpu(scene: &Scene) -> (Target, TargetStats) {
     let (sums, samples) = all_triangle_sums_cpu(scene);
     gather(scene, &sums, samples)
+}
+
+/// One row per mesh vertex that carries data (the thesis's target), with `sampling`.
+pub fn rows(mesh: &Mesh, tg: &Target, sampling: Sampling) -> Rows {
+    let mut p = Rows::new(sampling);
+    for v in 0..mesh.positions.len() {
+        let has = (0..3).any(|c| tg.weight[v][c] > 0.0 || tg.lower[v][c] > 0.0);
+        if has && tg.area[v] > 0.0 {
+            p.push(Row {
+                vertex: v as u32,
+                material: mesh.v_material[v],
+                texel: [u32::MAX; 3],
+                pos: mesh.positions[v],
+                normal: mesh.normals[v],
+                albedo: tg.albedo[v],
+                lo: tg.value[v],
+                hi: tg.hi[v],
+                weight: tg.weight[v],
+                lower: tg.lower[v],
+                area: tg.area[v],
+            });
+        }
+    }
+    p.finish();
+    p
 }

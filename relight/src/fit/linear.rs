@@ -1,0 +1,316 @@
+//! The exact fit of every linear coefficient of the model for fixed positions,
+//! directions and switches: the lights' intensities per channel, the sun's, the sky's,
+//! each surface group's radiance, the ambient and the gathered bounce's scale.
+//!
+//! Each coefficient is a column: its radiance per unit at every row, through the
+//! model's linear chain (filter, dirt and the bounces at their current scale, see
+//! [`crate::model`]). Per channel, `min sum_i A_i w_i (sum_k x_ik b_k - mid_i)^2` over
+//! `0 <= b <= upper` (the intervals' middles; rows held at the minlight floor and
+//! censored channels are left out) is solved on the Gram matrix by projected coordinate
+//! descent. Columns through a non-local chain (filter, bounce) are run through it one
+//! by one when there are few of them (at most [`DENSE_COLUMNS`]); with more, the chain is
+//! taken as local (dirt only) and the gradient phases finish the fit.
+//!
+//! With [`Fitter::kind_scales`] the coefficients are not free one by one: each kind of
+//! emitter keeps its members' proportions and gets one multiplier per channel (q3map2's
+//! `-pointscale`, `-skyscale` for the sun and the sky light, `-areascale` for the surface
+//! lights), so a map's own sources are scaled as a compile could have, never moved apart.
+
+use rayon::prelude::*;
+
+use super::Fitter;
+use crate::model::{lights, Model};
+
+/// Most columns pushed through a non-local chain exactly.
+pub const DENSE_COLUMNS: usize = 64;
+
+/// What a column is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Col {
+    Light(usize),
+    Sun,
+    Sky,
+    Surface(usize),
+    Ambient,
+    Gathered,
+}
+
+/// Projected coordinate descent for `min 1/2 x'Gx - r'x, 0 <= x <= upper` (free entries
+/// only; fixed ones keep their value).
+pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
+    for _ in 0..sweeps {
+        let mut change = 0.0f64;
+        let mut scale = 0.0f64;
+        for j in 0..n {
+            if !free[j] || !(g[j * n + j] > 0.0) {
+                continue;
+            }
+            let mut s = r[j];
+            for l in 0..n {
+                if l != j {
+                    s -= g[j * n + l] * x[l];
+                }
+            }
+            let new = (s / g[j * n + j]).max(0.0).min(upper[j]);
+            change = change.max((new - x[j]).abs());
+            scale = scale.max(new.abs());
+            x[j] = new;
+        }
+        if change <= 1e-10 * scale.max(1e-300) {
+            break;
+        }
+    }
+}
+
+impl Col {
+    /// The kind of emitter a column belongs to, for [`Fitter::kind_scales`].
+    fn kind(self) -> usize {
+        match self {
+            Col::Light(_) => 0,
+            Col::Sun | Col::Sky => 1,
+            Col::Surface(_) => 2,
+            Col::Ambient => 3,
+            Col::Gathered => 4,
+        }
+    }
+}
+
+impl Fitter<'_> {
+    /// The columns of the current model and their current values per channel.
+    fn columns(&self) -> (Vec<Col>, Vec<[f64; 3]>) {
+        let m = &self.model;
+        let mut cols = Vec::new();
+        let mut val = Vec::new();
+        for (j, l) in m.lights.iter().enumerate() {
+            cols.push(Col::Light(j));
+            val.push(l.rgb.map(|v| v as f64));
+        }
+        if let Some(s) = &m.sun {
+            cols.push(Col::Sun);
+            val.push(s.rgb.map(|v| v as f64));
+        }
+        if let Some(k) = m.sky {
+            cols.push(Col::Sky);
+            val.push(k.map(|v| v as f64));
+        }
+        for (s, l) in m.surfaces.iter().enumerate() {
+            if let Some(l) = l {
+                cols.push(Col::Surface(s));
+                val.push(l.map(|v| v as f64));
+            }
+        }
+        if let Some(a) = m.ambient {
+            cols.push(Col::Ambient);
+            val.push(a.map(|v| v as f64));
+        }
+        if let Some(k) = m.gathered {
+            cols.push(Col::Gathered);
+            val.push(k.map(|v| v as f64));
+        }
+        (cols, val)
+    }
+
+    /// Fits every linear coefficient exactly (see the module docs); returns the new
+    /// relative error.
+    pub fn fit_linear(&mut self) -> f64 {
+        self.refresh_visibility();
+        if self.failure.is_some() {
+            return f64::NAN;
+        }
+        // Twice: the rows held at the minlight floor depend on the coefficients.
+        let rounds = if self.model.minlight.is_some() { 2 } else { 1 };
+        for _ in 0..rounds {
+            self.fit_linear_once();
+            if self.failure.is_some() {
+                return f64::NAN;
+            }
+        }
+        self.eval().rel_error
+    }
+
+    fn fit_linear_once(&mut self) {
+        let (cols, mut values) = self.columns();
+        if cols.is_empty() {
+            return;
+        }
+        // The unknowns: one per column, or one per kind of emitter (multiplying the
+        // columns' current values).
+        let kinds = self.kind_scales;
+        let unknown: Vec<usize> = if kinds { cols.iter().map(|c| c.kind()).collect() } else { (0..cols.len()).collect() };
+        let k = if kinds { 5 } else { cols.len() };
+        let unit: Vec<[f64; 3]> = if kinds { values.clone() } else { vec![[1.0; 3]; cols.len()] };
+        let rows = self.rows;
+        let bases = self.bases;
+        let n = rows.len();
+        let m = self.model.clone();
+        // Rows at the minlight floor (for the current model) are left out.
+        let floor: Vec<[bool; 3]> = match m.minlight {
+            Some(ml) => {
+                let e = if m.lights.is_empty() {
+                    Vec::new()
+                } else {
+                    match self.backend.irradiance(&self.vis, &m.lights) {
+                        Ok(e) => e,
+                        Err(err) => {
+                            self.failure = Some(err);
+                            return;
+                        }
+                    }
+                };
+                let fw = crate::model::forward(&m, rows, bases, &self.vis, &e);
+                fw.total.iter().map(|t| [0, 1, 2].map(|c| t[c] <= ml[c] as f64)).collect()
+            }
+            None => vec![[false; 3]; n],
+        };
+        let dirt = if m.dirt { bases.dirt.as_deref() } else { None };
+        let nonlocal = (m.filter && bases.filter.is_some()) || (m.bounce.is_some() && bases.bounce.is_some());
+        let dense = nonlocal && cols.len() <= DENSE_COLUMNS;
+        // Per row: (column, per-unit direct irradiance) for the sparse path; the gathered
+        // column is in radiance already.
+        let unit_direct = |i: usize, out: &mut Vec<(usize, f64)>| {
+            out.clear();
+            for (c, col) in cols.iter().enumerate() {
+                let v = match *col {
+                    Col::Light(j) => {
+                        if !self.vis.visible(j, i) {
+                            continue;
+                        }
+                        let l = &m.lights[j];
+                        // The falloff cut depends on the intensity: taken at the current one.
+                        let t = lights::term(rows, i, l);
+                        t.g as f64
+                    }
+                    Col::Sun => m.sun.map_or(0.0, |s| s.cos_at(rows, &self.vis, i) as f64),
+                    Col::Sky => bases.sky.as_ref().map_or(0.0, |b| b.d[i] as f64),
+                    Col::Surface(s) => bases.surfaces.row(i).iter().filter(|e| e.0 as usize == s).map(|e| e.1 as f64).sum(),
+                    Col::Ambient | Col::Gathered => continue,
+                };
+                if v != 0.0 {
+                    out.push((c, v));
+                }
+            }
+        };
+        // Dense columns through the chain: x_col per row and channel.
+        let dense_cols: Option<Vec<Vec<[f64; 3]>>> = dense.then(|| {
+            (0..cols.len())
+                .into_par_iter()
+                .map(|c| {
+                    let mut one = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, gathered: None, minlight: None, ..m.clone() };
+                    let mut e_l: Vec<[f32; 3]> = Vec::new();
+                    match cols[c] {
+                        Col::Light(j) => {
+                            let l = m.lights[j];
+                            e_l = (0..n).map(|i| if self.vis.visible(j, i) { [lights::term(rows, i, &l).g; 3] } else { [0.0; 3] }).collect();
+                        }
+                        Col::Sun => one.sun = m.sun.map(|s| crate::model::Sun { rgb: [1.0; 3], ..s }),
+                        Col::Sky => one.sky = Some([1.0; 3]),
+                        Col::Surface(s) => one.surfaces[s] = Some([1.0; 3]),
+                        Col::Ambient => one.ambient = Some([1.0; 3]),
+                        Col::Gathered => one.gathered = Some([1.0; 3]),
+                    }
+                    crate::model::forward(&one, rows, bases, &self.vis, &e_l).x
+                })
+                .collect()
+        });
+        let chunk = 8192;
+        let (gram, rhs) = (0..n.div_ceil(chunk))
+            .into_par_iter()
+            .map(|ci| {
+                let mut gram = vec![vec![0.0f64; k * k]; 3];
+                let mut rhs = vec![vec![0.0f64; k]; 3];
+                let mut nz: Vec<(usize, f64)> = Vec::new();
+                let mut basis: Vec<(usize, f64)> = Vec::new();
+                for i in ci * chunk..((ci + 1) * chunk).min(n) {
+                    if dense_cols.is_none() {
+                        unit_direct(i, &mut nz);
+                    }
+                    for c in 0..3 {
+                        let w = rows.area[i] as f64 * rows.weight[i][c] as f64;
+                        if w == 0.0 || floor[i][c] {
+                            continue;
+                        }
+                        basis.clear();
+                        match &dense_cols {
+                            Some(d) => basis.extend((0..cols.len()).map(|q| (unknown[q], d[q][i][c] * unit[q][c])).filter(|b| b.1 != 0.0)),
+                            None => {
+                                let a = rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64);
+                                basis.extend(nz.iter().map(|&(q, v)| (unknown[q], a * v * unit[q][c])));
+                                for (q, col) in cols.iter().enumerate() {
+                                    match col {
+                                        Col::Ambient => basis.push((unknown[q], a * unit[q][c])),
+                                        Col::Gathered => basis.push((unknown[q], bases.gathered.as_ref().map_or(0.0, |o| o[i][c] as f64) * unit[q][c])),
+                                        _ => {}
+                                    }
+                                }
+                            }
+                        }
+                        let mid = rows.mid(i, c);
+                        for &(p, bp) in &basis {
+                            rhs[c][p] += w * bp * mid;
+                            for &(q, bq) in &basis {
+                                gram[c][p * k + q] += w * bp * bq;
+                            }
+                        }
+                    }
+                }
+                (gram, rhs)
+            })
+            .reduce(
+                || (vec![vec![0.0; k * k]; 3], vec![vec![0.0; k]; 3]),
+                |(mut g1, mut r1), (g2, r2)| {
+                    for c in 0..3 {
+                        g1[c].iter_mut().zip(&g2[c]).for_each(|(a, b)| *a += b);
+                        r1[c].iter_mut().zip(&r2[c]).for_each(|(a, b)| *a += b);
+                    }
+                    (g1, r1)
+                },
+            );
+        let frozen = self.frozen_emitters;
+        for c in 0..3 {
+            if kinds {
+                // Multipliers of the kinds (1: as they are); a kind without columns stays 1.
+                let mut x = vec![1.0f64; k];
+                let free = vec![true; k];
+                let upper = vec![f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::INFINITY, 1.0];
+                nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
+                for q in 0..cols.len() {
+                    values[q][c] *= x[unknown[q]];
+                }
+            } else {
+                let free: Vec<bool> = cols
+                    .iter()
+                    .map(|col| match col {
+                        Col::Light(j) => !self.locked[*j],
+                        Col::Sun | Col::Sky | Col::Surface(_) => !frozen,
+                        Col::Ambient | Col::Gathered => true,
+                    })
+                    .collect();
+                let upper: Vec<f64> = cols.iter().map(|col| if *col == Col::Gathered { 1.0 } else { f64::INFINITY }).collect();
+                let mut x: Vec<f64> = values.iter().map(|v| v[c]).collect();
+                nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
+                for q in 0..k {
+                    values[q][c] = x[q];
+                }
+            }
+        }
+        // Keep every coefficient just above zero so its logarithm stays finite.
+        let top = values.iter().flat_map(|v| v.iter()).copied().fold(1e-9, f64::max);
+        let floor_v = |v: f64| v.max(1e-6 * top) as f32;
+        let mm = &mut self.model;
+        for (q, col) in cols.iter().enumerate() {
+            let v = values[q];
+            match *col {
+                Col::Light(j) => {
+                    if !self.locked[j] || kinds {
+                        mm.lights[j].rgb = v.map(floor_v);
+                    }
+                }
+                Col::Sun => mm.sun.as_mut().expect("a column per term").rgb = v.map(floor_v),
+                Col::Sky => mm.sky = Some(v.map(floor_v)),
+                Col::Surface(s) => mm.surfaces[s] = Some(v.map(floor_v)),
+                Col::Ambient => mm.ambient = Some(v.map(|x| x.max(1e-9) as f32)),
+                Col::Gathered => mm.gathered = Some(v.map(|x| x.clamp(1e-6, 1.0 - 1e-6) as f32)),
+            }
+        }
+    }
+}

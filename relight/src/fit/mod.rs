@@ -1,0 +1,302 @@
+//! The optimisation state: the model being fitted, its parameterisation ([`params`]),
+//! penalties, phases of optimisers ([`crate::optim`]), the exact linear fit of every
+//! linear coefficient ([`linear`]), and the pruning and merging of lights ([`prune`]).
+//!
+//! Penalties (scaled to the objective of an unlit scene `F0`): a light closer than
+//! `min_dist` to a surface pays `F0 (1 - dist/min_dist)^2`; a light outside the scene's
+//! box pays `F0 (outside/unit)^2` per axis.
+//!
+//! Invariants: a phase never ends worse than it began (visibility changes can make an
+//! optimiser's last accepted step worse once re-traced: the phase is then undone);
+//! line-search trials see the visibility of the current iterate (a smooth function),
+//! re-tracing happens only at accepted iterates; locked lights are masked out of every
+//! optimiser and of the linear fit.
+
+pub mod linear;
+pub mod params;
+pub mod prune;
+
+use std::time::Instant;
+
+use glam::Vec3;
+
+use crate::backend::Backend;
+use crate::model::{self, Bases, Eval, Light, Model};
+use crate::optim::{self, Stop};
+use crate::rows::Rows;
+use crate::trace::bvh::Bvh;
+use crate::trace::visibility::{self, Visibility};
+pub use params::{angles, direction, Codec, ParamSet};
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "algorithm", rename_all = "lowercase")]
+pub enum Algorithm {
+    Adam { step: f64 },
+    Lbfgs { step: f64 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Phase {
+    #[serde(flatten)]
+    pub algorithm: Algorithm,
+    pub params: ParamSet,
+    pub max_iterations: usize,
+}
+
+/// One objective evaluation that ended an iteration.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct IterRecord {
+    /// Seconds since the fitter's `start` (the run's start in the report).
+    pub time_s: f64,
+    pub phase: usize,
+    pub iteration: usize,
+    pub objective: f64,
+    pub rel_error: f64,
+    pub lights: usize,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PhaseSummary {
+    pub name: String,
+    #[serde(flatten)]
+    pub phase: Phase,
+    pub iterations: usize,
+    pub evaluations: usize,
+    pub stop: Stop,
+    pub time_s: f64,
+    pub rel_error_before: f64,
+    pub rel_error_after: f64,
+}
+
+pub struct Fitter<'a> {
+    pub rows: &'a Rows,
+    pub bases: &'a Bases,
+    pub bvh: &'a Bvh,
+    pub backend: &'a mut dyn Backend,
+    pub vis: Visibility,
+    pub model: Model,
+    /// Per light: the user's lock (never changed by the fit).
+    pub locked: Vec<bool>,
+    pub codec: Codec,
+    pub lo: Vec3,
+    pub hi: Vec3,
+    /// Lights keep at least this distance from surfaces, m.
+    pub min_dist: f32,
+    /// A light is re-traced when it moved more than this, m.
+    pub retrace_tol: f32,
+    /// The sun is re-traced when its direction turned more than this, radians.
+    pub sun_retrace_tol: f32,
+    pub history: Vec<IterRecord>,
+    pub phases: Vec<PhaseSummary>,
+    pub start: Instant,
+    pub deadline: Option<Instant>,
+    pub evaluations: usize,
+    pub phase_index: usize,
+    /// Called after every iteration (progress display).
+    pub on_iter: Option<Box<dyn FnMut(&IterRecord) + 'a>>,
+    /// The first backend error; once set, evaluations return NaN and every loop stops.
+    pub failure: Option<crate::error::Error>,
+    /// The map's emitters (sun, sky, surface lights) keep their values.
+    pub frozen_emitters: bool,
+    /// The minlight keeps its value (the map recorded it).
+    pub frozen_minlight: bool,
+    /// The linear fit scales each kind of emitter as a whole ([`linear`]).
+    pub kind_scales: bool,
+}
+
+impl<'a> Fitter<'a> {
+    pub fn new(rows: &'a Rows, bases: &'a Bases, bvh: &'a Bvh, backend: &'a mut dyn Backend, lo: Vec3, hi: Vec3) -> Fitter<'a> {
+        let diag = (hi - lo).length().max(1e-3);
+        Fitter {
+            rows,
+            bases,
+            bvh,
+            backend,
+            vis: Visibility::default(),
+            model: Model::default(),
+            locked: Vec::new(),
+            codec: Codec { center: (lo + hi) * 0.5, unit: 0.05 * diag },
+            lo,
+            hi,
+            min_dist: (0.002 * diag).max(0.05),
+            retrace_tol: (0.002 * diag).max(0.01),
+            sun_retrace_tol: 1e-3,
+            history: Vec::new(),
+            phases: Vec::new(),
+            start: Instant::now(),
+            deadline: None,
+            evaluations: 0,
+            phase_index: 0,
+            on_iter: None,
+            failure: None,
+            frozen_emitters: false,
+            frozen_minlight: false,
+            kind_scales: false,
+        }
+    }
+
+    /// True when the time limit passed or the backend failed: every loop stops.
+    pub fn out_of_time(&self) -> bool {
+        self.failure.is_some() || self.deadline.is_some_and(|d| Instant::now() >= d)
+    }
+
+    pub fn add_light(&mut self, l: Light, locked: bool) {
+        self.model.lights.push(l);
+        self.locked.push(locked);
+    }
+
+    /// Removes light `j` (keeps the visibility cache aligned).
+    pub fn remove_light(&mut self, j: usize) {
+        self.model.lights.remove(j);
+        self.locked.remove(j);
+        if j < self.vis.bits.len() {
+            self.vis.remove(j);
+        }
+    }
+
+    /// Brings the visibility up to date with `m` (lights that moved, the sun if it turned).
+    fn retrace(&mut self, m: &Model) -> crate::error::Result<()> {
+        let n = self.rows.len();
+        let (bvh, rows, sky) = (self.bvh, self.rows, &self.bases.sky_triangles);
+        self.vis.update_sun(m.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| visibility::trace_sun(bvh, rows, d, sky));
+        let backend = &mut *self.backend;
+        self.vis.update(&m.lights, self.retrace_tol, &self.rows.sampling, n, &mut |p| backend.trace(p)).map(|_| ())
+    }
+
+    /// Re-traces what moved, without evaluating the objective.
+    pub fn refresh_visibility(&mut self) {
+        if self.failure.is_some() {
+            return;
+        }
+        let m = self.model.clone();
+        if let Err(e) = self.retrace(&m) {
+            self.failure = Some(e);
+        }
+    }
+
+    /// Objective without penalties for the current model (re-traces what moved).
+    pub fn eval(&mut self) -> Eval {
+        let m = self.model.clone();
+        self.eval_model(&m)
+    }
+
+    pub fn eval_model(&mut self, m: &Model) -> Eval {
+        if self.failure.is_some() {
+            return Eval::failed(m);
+        }
+        let r = self.retrace(m).and_then(|_| {
+            self.evaluations += 1;
+            model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
+        });
+        match r {
+            Ok(ev) => ev,
+            Err(e) => {
+                self.failure = Some(e);
+                Eval::failed(m)
+            }
+        }
+    }
+
+    /// Like `eval_model` but with the visibility cache as it is (no re-trace).
+    pub fn eval_frozen(&mut self, m: &Model) -> Eval {
+        if self.failure.is_some() || self.vis.bits.len() != m.lights.len() || self.vis.sun.is_some() != m.sun.is_some() {
+            return self.eval_model(m);
+        }
+        self.evaluations += 1;
+        match model::evaluate(m, self.rows, self.bases, &self.vis, self.backend) {
+            Ok(ev) => ev,
+            Err(e) => {
+                self.failure = Some(e);
+                Eval::failed(m)
+            }
+        }
+    }
+
+    /// Penalty value and its gradient with respect to each light position (per meter).
+    pub fn penalty(&self, lights: &[Light]) -> (f64, Vec<Vec3>) {
+        let f0 = 0.5 * self.rows.norm2.max(1e-30);
+        let mut total = 0.0;
+        let mut grads = vec![Vec3::ZERO; lights.len()];
+        let unit = self.codec.unit;
+        for (j, l) in lights.iter().enumerate() {
+            if let Some((dist, near)) = self.bvh.nearest(l.pos) {
+                if dist < self.min_dist {
+                    let u = 1.0 - dist / self.min_dist;
+                    total += f0 * (u * u) as f64;
+                    let dir = (l.pos - near).try_normalize().unwrap_or(Vec3::ZERO);
+                    grads[j] += dir * (-2.0 * u / self.min_dist * f0 as f32);
+                }
+            }
+            for a in 0..3 {
+                let below = self.lo[a] - l.pos[a];
+                let above = l.pos[a] - self.hi[a];
+                if below > 0.0 {
+                    total += f0 * ((below / unit) as f64).powi(2);
+                    grads[j][a] -= 2.0 * below / (unit * unit) * f0 as f32;
+                }
+                if above > 0.0 {
+                    total += f0 * ((above / unit) as f64).powi(2);
+                    grads[j][a] += 2.0 * above / (unit * unit) * f0 as f32;
+                }
+            }
+        }
+        (total, grads)
+    }
+
+    /// Runs one phase; returns its summary (also appended to `phases`).
+    pub fn run_phase(&mut self, name: &str, phase: Phase) -> PhaseSummary {
+        let t0 = Instant::now();
+        let start_eval = self.eval();
+        let before = start_eval.rel_error;
+        let start = (self.model.clone(), start_eval.f + self.penalty(&self.model.lights).0);
+        let x0 = self.codec.encode(&self.model);
+        let mask = self.codec.mask(&self.model, &self.locked, phase.params, self.frozen_emitters, self.frozen_minlight);
+        let layout = self.model.clone();
+        let phase_no = self.phase_index;
+        self.phase_index += 1;
+        let last_err = std::cell::Cell::new(before);
+        let outcome = {
+            let this = std::cell::RefCell::new(&mut *self);
+            let mut objective = |x: &[f64], fresh: bool| -> (f64, Vec<f64>) {
+                let mut me = this.borrow_mut();
+                let m = me.codec.decode(&layout, x);
+                let ev = if fresh { me.eval_model(&m) } else { me.eval_frozen(&m) };
+                let (pen, pgrad) = me.penalty(&m.lights);
+                last_err.set(ev.rel_error);
+                let g = if ev.f.is_finite() { me.codec.gradient(&m, x, &ev, &pgrad) } else { vec![0.0; x.len()] };
+                (ev.f + pen, g)
+            };
+            let mut observe = |it: usize, f: f64| -> bool {
+                let mut me = this.borrow_mut();
+                let rec = IterRecord { time_s: me.start.elapsed().as_secs_f64(), phase: phase_no, iteration: it, objective: f, rel_error: last_err.get(), lights: me.model.lights.len() };
+                if let Some(cb) = me.on_iter.as_mut() {
+                    cb(&rec);
+                }
+                me.history.push(rec);
+                !me.out_of_time()
+            };
+            match phase.algorithm {
+                Algorithm::Adam { step } => optim::adam(&x0, &mask, step, phase.max_iterations, 1e-5, &mut objective, &mut observe),
+                Algorithm::Lbfgs { step } => optim::lbfgs(&x0, &mask, step, phase.max_iterations, 1e-6, &mut objective, &mut observe),
+            }
+        };
+        self.model = self.codec.decode(&layout, &outcome.x);
+        let mut end_eval = self.eval();
+        if !(end_eval.f + self.penalty(&self.model.lights).0 <= start.1) {
+            self.model = start.0;
+            end_eval = self.eval();
+        }
+        let s = PhaseSummary {
+            name: name.to_string(),
+            phase,
+            iterations: outcome.iterations,
+            evaluations: outcome.evaluations,
+            stop: outcome.stop,
+            time_s: t0.elapsed().as_secs_f64(),
+            rel_error_before: before,
+            rel_error_after: end_eval.rel_error,
+        };
+        self.phases.push(s.clone());
+        s
+    }
+}

@@ -1,0 +1,71 @@
+//! As few lights as the data needs: pruning lights whose removal costs (almost) nothing,
+//! merging lights that sit together.
+
+use super::Fitter;
+use crate::model::Light;
+
+impl Fitter<'_> {
+    /// Removes lights whose removal raises the relative error by less than `tol`
+    /// (absolute), one at a time (the weakest first), refitting the linear coefficients
+    /// after each. Returns how many.
+    pub fn prune(&mut self, tol: f64) -> usize {
+        let mut removed = 0;
+        loop {
+            if self.out_of_time() || self.model.lights.len() <= 1 {
+                return removed;
+            }
+            let base = self.fit_linear();
+            let saved = (self.model.clone(), self.locked.clone(), self.vis.clone());
+            let mut order: Vec<usize> = (0..self.model.lights.len()).filter(|&j| !self.locked[j]).collect();
+            order.sort_by(|&a, &b| self.model.lights[a].rgb.iter().sum::<f32>().total_cmp(&self.model.lights[b].rgb.iter().sum::<f32>()));
+            let mut done = false;
+            for &j in order.iter().take(4) {
+                self.remove_light(j);
+                let e = self.fit_linear();
+                if e <= base + tol {
+                    removed += 1;
+                    done = true;
+                    break;
+                }
+                (self.model, self.locked, self.vis) = saved.clone();
+            }
+            if !done {
+                (self.model, self.locked, self.vis) = saved;
+                return removed;
+            }
+        }
+    }
+
+    /// Merges pairs of free point lights closer than `dist` m when that raises the
+    /// relative error by less than `tol`. Returns how many merges were made.
+    pub fn merge(&mut self, dist: f32, tol: f64) -> usize {
+        let mut merged = 0;
+        'outer: loop {
+            if self.out_of_time() {
+                return merged;
+            }
+            let base = self.fit_linear();
+            let k = self.model.lights.len();
+            for a in 0..k {
+                for b in a + 1..k {
+                    let (la, lb) = (self.model.lights[a], self.model.lights[b]);
+                    if self.locked[a] || self.locked[b] || la.spot.is_some() || lb.spot.is_some() || (la.pos - lb.pos).length() > dist {
+                        continue;
+                    }
+                    let saved = (self.model.clone(), self.locked.clone(), self.vis.clone());
+                    let (wa, wb) = (la.rgb.iter().sum::<f32>(), lb.rgb.iter().sum::<f32>());
+                    let pos = (la.pos * wa + lb.pos * wb) / (wa + wb).max(1e-30);
+                    self.model.lights[a] = Light::point(pos, [0, 1, 2].map(|c| la.rgb[c] + lb.rgb[c]));
+                    self.remove_light(b);
+                    let e = self.fit_linear();
+                    if e <= base + tol {
+                        merged += 1;
+                        continue 'outer;
+                    }
+                    (self.model, self.locked, self.vis) = saved;
+                }
+            }
+            return merged;
+        }
+    }
+}

@@ -1,0 +1,239 @@
+//! What q3map2's compile does to the light after the emitters (`IlluminateRawLightmap`,
+//! `StoreSurfaceLightmaps`), in its order:
+//!
+//! 1. **filter** (`-filter`): each light's luxels are blurred over the 3x3 luxels of the
+//!    same raw lightmap, weights 1 at the centre, 1/2 on the sides and 1/4 at the corners
+//!    (luxels that are not mapped count with weight 0), normalised;
+//! 2. **ambient** (`_ambient`): a constant added to every luxel (not filtered);
+//! 3. **dirt** (`-dirt`): the sum multiplied by an ambient-occlusion factor
+//!    ([`dirt`]), computed once per luxel;
+//! 4. bounces ([`super::bounce`]) go through 1 and 3 again, without the ambient;
+//! 5. **minlight** (`_minlight`): every channel raised to at least this value when the
+//!    lightmap is stored.
+//!
+//! Filter and dirt are linear: [`Sparse`] operators on the rows, with their transposes
+//! for the gradient. The minlight floor is the model's one non-linearity in the light.
+//! Gamma (`-gamma`) is applied to the data instead (the lightmap's decode), and the
+//! clamp at 255 is the data's censoring.
+//!
+//! "Same raw lightmap" is not in the glTF: neighbours are the rows of the 8 adjacent
+//! texels of the same lightmap texture whose material is the same and whose sample
+//! points lie within 2.5 texel widths with normals within 25 degrees (packed neighbours
+//! of another surface are far away in the world).
+
+use std::collections::HashMap;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::rows::Rows;
+use crate::trace::bvh::Bvh;
+
+/// A sparse linear operator on the rows: `y_i = sum_k w_ik x_{j_ik}` (CSR).
+#[derive(Debug, Clone, Default)]
+pub struct Sparse {
+    pub offsets: Vec<u32>,
+    pub entries: Vec<(u32, f32)>,
+}
+
+impl Sparse {
+    pub fn row(&self, i: usize) -> &[(u32, f32)] {
+        &self.entries[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    pub fn rows(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// `y = S x` per channel, with an optional per-column factor `col[j]` (per channel).
+    pub fn apply(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        (0..self.rows())
+            .into_par_iter()
+            .map(|i| {
+                let mut y = [0.0f64; 3];
+                for &(j, w) in self.row(i) {
+                    let j = j as usize;
+                    for c in 0..3 {
+                        let f = col.map_or(1.0, |a| a[j][c] as f64);
+                        y[c] += w as f64 * f * x[j][c];
+                    }
+                }
+                y
+            })
+            .collect()
+    }
+
+    /// `y = S^T x` (the same optional column factor applied on the output side).
+    pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        let mut y = vec![[0.0f64; 3]; x.len()];
+        for i in 0..self.rows() {
+            for &(j, w) in self.row(i) {
+                let j = j as usize;
+                for c in 0..3 {
+                    let f = col.map_or(1.0, |a| a[j][c] as f64);
+                    y[j][c] += w as f64 * f * x[i][c];
+                }
+            }
+        }
+        y
+    }
+}
+
+/// The 8 neighbours of every luxel row in its raw lightmap (see the module docs), as
+/// `(row, dx, dy)`.
+pub fn neighbours(rows: &Rows) -> Vec<Vec<(u32, i8, i8)>> {
+    let index: HashMap<[u32; 3], u32> = (0..rows.len()).filter(|&i| rows.texel[i][0] != u32::MAX).map(|i| (rows.texel[i], i as u32)).collect();
+    (0..rows.len())
+        .map(|i| {
+            let [t, x, y] = rows.texel[i];
+            if t == u32::MAX {
+                return Vec::new();
+            }
+            let reach = 2.5 * rows.area[i].max(0.0).sqrt();
+            let mut out = Vec::new();
+            for dy in -1i32..=1 {
+                for dx in -1i32..=1 {
+                    if (dx, dy) == (0, 0) {
+                        continue;
+                    }
+                    let (nx, ny) = (x as i64 + dx as i64, y as i64 + dy as i64);
+                    if nx < 0 || ny < 0 {
+                        continue;
+                    }
+                    let Some(&j) = index.get(&[t, nx as u32, ny as u32]) else { continue };
+                    let j = j as usize;
+                    if rows.material[j] == rows.material[i] && (rows.pos[j] - rows.pos[i]).length() <= reach && rows.normal[j].dot(rows.normal[i]) > 0.906 {
+                        out.push((j as u32, dx as i8, dy as i8));
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// q3map2's `-filter` on every light: the normalised 3x3 tent (see the module docs).
+pub fn filter(rows: &Rows, nb: &[Vec<(u32, i8, i8)>]) -> Sparse {
+    let mut s = Sparse { offsets: vec![0], entries: Vec::new() };
+    for i in 0..rows.len() {
+        let mut row = vec![(i as u32, 1.0f32)];
+        for &(j, dx, dy) in &nb[i] {
+            let w = if dx != 0 { 0.5 } else { 1.0 } * if dy != 0 { 0.5 } else { 1.0 };
+            row.push((j, w));
+        }
+        let sum: f32 = row.iter().map(|e| e.1).sum();
+        s.entries.extend(row.into_iter().map(|(j, w)| (j, w / sum)));
+        s.offsets.push(s.entries.len() as u32);
+    }
+    s
+}
+
+/// Dirt settings (q3map2's `-dirtdepth`, `-dirtscale`, `-dirtgain`, `-dirtmode` 0).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct DirtSettings {
+    /// Ray length, m.
+    pub depth: f32,
+    pub scale: f32,
+    pub gain: f32,
+}
+
+/// The 48 ordered directions of q3map2's dirt (16 azimuths x 3 elevations within 88
+/// degrees of the normal), in the normal's frame `(right, up, normal)`.
+fn dirt_vectors() -> Vec<[f32; 3]> {
+    let angle_step = (360.0f32 / 16.0).to_radians();
+    let elevation_step = (88.0f32 / 3.0).to_radians();
+    let mut v = Vec::with_capacity(48);
+    for i in 0..16 {
+        let angle = i as f32 * angle_step;
+        for j in 0..3 {
+            let elevation = elevation_step * (0.5 + j as f32);
+            v.push([elevation.sin() * angle.cos(), elevation.sin() * angle.sin(), elevation.cos()]);
+        }
+    }
+    v
+}
+
+/// The occlusion gathered at one sample: `sum (1 - hit distance / depth)` over the 48
+/// directions and the normal, for hits within `depth`.
+pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32) -> f32 {
+    // q3map2's tangent frame: right = n x up (Quake's Z is glTF's Y), up = right x n.
+    let world_up = Vec3::Y;
+    let (right, up) = if n.x == 0.0 && n.z == 0.0 && n.y.abs() == 1.0 {
+        // Quake: (1, 0, 0) and (0, 1, 0) for +Z, (-1, 0, 0) and (0, 1, 0) for -Z; glTF
+        // maps Quake's +Y to -Z.
+        (Vec3::X * n.y, Vec3::NEG_Z)
+    } else {
+        let r = n.cross(world_up).normalize();
+        (r, r.cross(n).normalize())
+    };
+    let mut g = 0.0;
+    for v in dirt_vectors().iter().chain(std::iter::once(&[0.0, 0.0, 1.0])) {
+        let d = right * v[0] + up * v[1] + n * v[2];
+        if let Some((t, _)) = bvh.first_hit(x, d * depth, 1.0) {
+            g += 1.0 - t;
+        }
+    }
+    g
+}
+
+/// The dirt factor of every row (1 = no darkening), smoothed over each luxel's mapped
+/// neighbours as q3map2 does: in place, row by row of each lightmap (later luxels see
+/// their earlier neighbours already smoothed), over the neighbours with some dirt.
+pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], set: &DirtSettings) -> Vec<f32> {
+    let raw: Vec<f32> = (0..rows.len())
+        .into_par_iter()
+        .map(|i| {
+            let g = dirt_gather(bvh, rows.pos[i], rows.normal[i], set.depth);
+            if g <= 0.0 {
+                return 1.0;
+            }
+            let out = ((g / 49.0).powf(set.gain).min(1.0) * set.scale).min(1.0);
+            1.0 - out
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..rows.len()).collect();
+    order.sort_by_key(|&i| (rows.texel[i][0], rows.texel[i][2], rows.texel[i][1]));
+    let mut dirt = raw;
+    for i in order {
+        let (mut sum, mut n) = (dirt[i], 1.0f32);
+        for &(j, _, _) in &nb[i] {
+            let d = dirt[j as usize];
+            if d > 0.0 {
+                sum += d;
+                n += 1.0;
+            }
+        }
+        dirt[i] = sum / n;
+    }
+    dirt
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sparse_transpose_is_the_adjoint() {
+        let s = Sparse { offsets: vec![0, 2, 3, 5], entries: vec![(0, 0.5), (2, 0.25), (1, 1.0), (0, 0.2), (2, 0.8)] };
+        let x = vec![[1.0, 2.0, 3.0], [0.5, -1.0, 2.0], [4.0, 0.0, -2.0]];
+        let y = vec![[0.3, 0.1, -0.7], [1.0, 2.0, 0.5], [-0.2, 0.4, 0.9]];
+        let col = vec![[0.9, 0.8, 0.7], [0.5, 0.6, 0.4], [1.0, 0.2, 0.3]];
+        let sx = s.apply(&x, Some(&col));
+        let sty = s.apply_transposed(&y, Some(&col));
+        for c in 0..3 {
+            let a: f64 = (0..3).map(|i| y[i][c] * sx[i][c]).sum();
+            let b: f64 = (0..3).map(|i| sty[i][c] * x[i][c]).sum();
+            assert!((a - b).abs() < 1e-12, "<y, Sx> = <S^T y, x>: {a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn dirt_directions_are_q3map2s() {
+        let v = dirt_vectors();
+        assert_eq!(v.len(), 48);
+        assert!(v.iter().all(|d| d[2] > 0.0 && ((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - 1.0).abs() < 1e-6));
+        // The lowest ring is 88 * 5/6 degrees from the normal.
+        let lowest = v.iter().map(|d| d[2]).fold(1.0f32, f32::min);
+        assert!((lowest - (88.0f32 * 5.0 / 6.0).to_radians().cos()).abs() < 1e-6);
+    }
+}

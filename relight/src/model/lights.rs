@@ -1,0 +1,300 @@
+//! Point and spot lights: the model's per-light term and the CPU reference of
+//! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl`.
+//!
+//! A light `j` of radiant intensity `I_jc` [W/sr] at `p_j` [m] gives row `i` (sample
+//! point `x_i`, unit normal `n_i`) the irradiance `E_ijc = I_jc V_ij g_ij`, where `V_ij`
+//! is the cached shadow-ray visibility ([`crate::trace::visibility`]) and
+//!
+//! ```text
+//! g_ij = max(0, n_i . d) / |d| / max(|d|, eps)^2 * cone_ij,     d = p_j - x_i
+//! ```
+//!
+//! `eps` is q3map2's 16-unit distance clamp ([`Sampling::eps`]); a point light has
+//! `cone = 1`. A spot light (axis `a`, unit; `r = radius / distance` at its edge) follows
+//! q3map2: with `u = x - p`, the distance along the axis `t = u . a`, the distance from
+//! the axis `rho = |u - a t|` and the cone's radius there `R = r t`,
+//!
+//! ```text
+//! cone = 0                   where t <= 0 or rho >= R
+//!      = (R - rho) / ramp    where R - ramp < rho < R      (ramp: 32 units)
+//!      = 1                   elsewhere
+//! ```
+//!
+//! Where a light's brightest channel adds at most [`Sampling::falloff`] (q3map2's
+//! one-byte tolerance for point lights), it adds nothing.
+//!
+//! Gradients, for `s = n . d > 0`, `r = |d|` outside `eps`: `grad_p G = n / r^3 -
+//! 3 s d / r^5` (inside `eps`: `n / (r eps^2) - s d / (r^3 eps^2)`); on the ramp, with
+//! `w = u - a t`: `grad_p cone = (w / rho - r a) / ramp`, `grad_a cone = (r u + t w /
+//! rho) / ramp`, `d cone / d r = t / ramp`. Visibility and the falloff cut are piecewise
+//! constant: their derivative is zero almost everywhere.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::rows::{Rows, Sampling};
+use crate::trace::visibility::Visibility;
+
+/// A spot light's cone (q3map2's spot: a light entity with a `target`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spot {
+    /// Unit axis, from the light towards its target.
+    pub axis: Vec3,
+    /// The cone's radius per unit of distance along the axis at its edge, `(radius + 16)
+    /// / distance` for q3map2's `radius` key (default 64).
+    pub radius_by_dist: f32,
+}
+
+/// A point light (or a spot, with `spot`): position [m] and radiant intensity per
+/// channel [W/sr].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Light {
+    pub pos: Vec3,
+    pub rgb: [f32; 3],
+    pub spot: Option<Spot>,
+}
+
+impl Light {
+    pub fn point(pos: Vec3, rgb: [f32; 3]) -> Light {
+        Light { pos, rgb, spot: None }
+    }
+    /// The brightest channel, W/sr.
+    pub fn max_rgb(&self) -> f32 {
+        self.rgb[0].max(self.rgb[1]).max(self.rgb[2])
+    }
+}
+
+/// `g` of one light at one row and its derivatives.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Term {
+    pub g: f32,
+    /// dg / d position.
+    pub dp: Vec3,
+    /// dg / d spot axis (zero for a point light).
+    pub da: Vec3,
+    /// dg / d radius_by_dist.
+    pub dr: f32,
+}
+
+/// The geometry factor of a point light at `x` (normal `n`) and its gradient with respect
+/// to the light position (see the module docs).
+#[inline]
+pub fn geometry(x: Vec3, n: Vec3, p: Vec3, eps: f32) -> (f32, Vec3) {
+    let d = p - x;
+    let s = n.dot(d);
+    let r2 = d.length_squared();
+    if !(s > 0.0) || !(r2 > 0.0) {
+        return (0.0, Vec3::ZERO);
+    }
+    let r = r2.sqrt();
+    let e2 = eps * eps;
+    if r2 > e2 {
+        let r3 = r2 * r;
+        (s / r3, n / r3 - d * (3.0 * s / (r3 * r2)))
+    } else {
+        (s / (r * e2), n / (r * e2) - d * (s / (r2 * r * e2)))
+    }
+}
+
+/// q3map2's spot cone at `x` and its derivatives: `(cone, d/dp, d/daxis, d/dr)`.
+#[inline]
+pub fn cone(x: Vec3, p: Vec3, spot: &Spot, ramp: f32) -> (f32, Vec3, Vec3, f32) {
+    let u = x - p;
+    let t = u.dot(spot.axis);
+    if !(t > 0.0) {
+        return (0.0, Vec3::ZERO, Vec3::ZERO, 0.0);
+    }
+    let w = u - spot.axis * t;
+    let rho = w.length();
+    let big_r = spot.radius_by_dist * t;
+    if !(rho < big_r) {
+        return (0.0, Vec3::ZERO, Vec3::ZERO, 0.0);
+    }
+    if rho <= big_r - ramp || !(ramp > 0.0) {
+        return (1.0, Vec3::ZERO, Vec3::ZERO, 0.0);
+    }
+    let c = (big_r - rho) / ramp;
+    let w_hat = if rho > 0.0 { w / rho } else { Vec3::ZERO };
+    let dp = (w_hat - spot.axis * spot.radius_by_dist) / ramp;
+    let da = (u * spot.radius_by_dist + w_hat * t) / ramp;
+    (c, dp, da, t / ramp)
+}
+
+/// `g` of light `l` at row `i`, with its derivatives; zero below the falloff tolerance.
+#[inline]
+pub fn term(rows: &Rows, i: usize, l: &Light) -> Term {
+    term_at(rows.pos[i], rows.normal[i], l, &rows.sampling)
+}
+
+/// [`term`] at an arbitrary point (the probe, the bake).
+#[inline]
+pub fn term_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> Term {
+    let (g0, dg0) = geometry(x, n, l.pos, s.eps);
+    if g0 == 0.0 {
+        return Term::default();
+    }
+    let t = match &l.spot {
+        None => Term { g: g0, dp: dg0, da: Vec3::ZERO, dr: 0.0 },
+        Some(sp) => {
+            let (c, dcp, dca, dcr) = cone(x, l.pos, sp, s.spot_ramp);
+            if c == 0.0 {
+                return Term::default();
+            }
+            Term { g: g0 * c, dp: dg0 * c + dcp * g0, da: dca * g0, dr: dcr * g0 }
+        }
+    };
+    if s.falloff > 0.0 && l.max_rgb() * t.g <= s.falloff {
+        return Term::default();
+    }
+    t
+}
+
+/// Irradiance of every light at every row, W/m^2 per channel (CPU backend).
+pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
+    (0..rows.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut e = [0.0f64; 3];
+            for (j, l) in lights.iter().enumerate() {
+                if !vis.visible(j, i) {
+                    continue;
+                }
+                let t = term(rows, i, l);
+                if t.g != 0.0 {
+                    for c in 0..3 {
+                        e[c] += l.rgb[c] as f64 * t.g as f64;
+                    }
+                }
+            }
+            e.map(|v| v as f32)
+        })
+        .collect()
+}
+
+/// Derivatives of the objective with respect to one light's parameters.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LightGrad {
+    /// dF / d position, per meter.
+    pub pos: [f64; 3],
+    /// dF / dI_c, per W/sr.
+    pub rgb: [f64; 3],
+    /// dF / d spot axis (unnormalised direction; zero for a point light).
+    pub axis: [f64; 3],
+    /// dF / d radius_by_dist.
+    pub radius_by_dist: f64,
+}
+
+impl LightGrad {
+    pub fn add(&mut self, o: &LightGrad) {
+        for q in 0..3 {
+            self.pos[q] += o.pos[q];
+            self.rgb[q] += o.rgb[q];
+            self.axis[q] += o.axis[q];
+        }
+        self.radius_by_dist += o.radius_by_dist;
+    }
+}
+
+/// The lights' gradients for `rho_ic = dF/dE_ic` (CPU backend; rayon over row chunks,
+/// f64 sums).
+pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Vec<LightGrad> {
+    let k = lights.len();
+    let chunk = 4096;
+    (0..rows.len().div_ceil(chunk))
+        .into_par_iter()
+        .map(|ci| {
+            let mut g = vec![LightGrad::default(); k];
+            for i in ci * chunk..((ci + 1) * chunk).min(rows.len()) {
+                let r = rho[i];
+                if r == [0.0; 3] {
+                    continue;
+                }
+                for (j, l) in lights.iter().enumerate() {
+                    if !vis.visible(j, i) {
+                        continue;
+                    }
+                    let t = term(rows, i, l);
+                    if t.g == 0.0 {
+                        continue;
+                    }
+                    let gj = &mut g[j];
+                    let mut s = 0.0f64;
+                    for c in 0..3 {
+                        gj.rgb[c] += r[c] as f64 * t.g as f64;
+                        s += r[c] as f64 * l.rgb[c] as f64;
+                    }
+                    for q in 0..3 {
+                        gj.pos[q] += s * t.dp[q] as f64;
+                        gj.axis[q] += s * t.da[q] as f64;
+                    }
+                    gj.radius_by_dist += s * t.dr as f64;
+                }
+            }
+            g
+        })
+        .reduce(
+            || vec![LightGrad::default(); k],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(&b) {
+                    x.add(y);
+                }
+                a
+            },
+        )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cone follows q3map2: full inside, a 32-unit linear ramp at the edge, nothing
+    /// outside or behind; its derivatives match central differences.
+    #[test]
+    fn spot_cone_and_its_derivatives() {
+        let spot = Spot { axis: Vec3::new(0.0, -1.0, 0.0), radius_by_dist: 0.5 };
+        let p = Vec3::new(0.0, 4.0, 0.0);
+        let ramp = 0.8;
+        // 4 m below the light: R = 2 m; inside, on the ramp, outside, behind.
+        assert_eq!(cone(Vec3::new(0.5, 0.0, 0.0), p, &spot, ramp).0, 1.0);
+        let (c, ..) = cone(Vec3::new(1.6, 0.0, 0.0), p, &spot, ramp);
+        assert!((c - 0.5).abs() < 1e-6, "{c}");
+        assert_eq!(cone(Vec3::new(2.1, 0.0, 0.0), p, &spot, ramp).0, 0.0);
+        assert_eq!(cone(Vec3::new(0.0, 5.0, 0.0), p, &spot, ramp).0, 0.0);
+        let x = Vec3::new(1.3, 0.2, 0.7);
+        let (_, dp, da, dr) = cone(x, p, &spot, ramp);
+        let h = 1e-3;
+        for q in 0..3 {
+            let mut a = p;
+            let mut b = p;
+            a[q] += h;
+            b[q] -= h;
+            let fd = (cone(x, a, &spot, ramp).0 - cone(x, b, &spot, ramp).0) / (2.0 * h);
+            assert!((fd - dp[q]).abs() < 1e-2, "d/dp{q}: {} vs {fd}", dp[q]);
+            let (mut sa, mut sb) = (spot, spot);
+            sa.axis[q] += h;
+            sb.axis[q] -= h;
+            let fd = (cone(x, p, &sa, ramp).0 - cone(x, p, &sb, ramp).0) / (2.0 * h);
+            assert!((fd - da[q]).abs() < 1e-2, "d/da{q}: {} vs {fd}", da[q]);
+        }
+        let (mut sa, mut sb) = (spot, spot);
+        sa.radius_by_dist += h;
+        sb.radius_by_dist -= h;
+        let fd = (cone(x, p, &sa, ramp).0 - cone(x, p, &sb, ramp).0) / (2.0 * h);
+        assert!((fd - dr).abs() < 1e-2, "d/dr: {dr} vs {fd}");
+    }
+
+    /// Below the falloff tolerance a light adds nothing; above it, everything.
+    #[test]
+    fn falloff_cuts_weak_contributions() {
+        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.05, spot_ramp: 0.8 };
+        let x = Vec3::ZERO;
+        let n = Vec3::Y;
+        // g at 2 m straight above = 1/4: I = 0.21 gives 0.0525 > 0.05, I = 0.19 gives 0.0475.
+        let l = |i: f32| Light::point(Vec3::new(0.0, 2.0, 0.0), [i, 0.01, 0.0]);
+        assert!((term_at(x, n, &l(0.21), &s).g - 0.25).abs() < 1e-6);
+        assert_eq!(term_at(x, n, &l(0.19), &s).g, 0.0);
+        // Within eps the inverse square is clamped: cos / eps^2.
+        let near = Light::point(Vec3::new(0.0, 0.1, 0.0), [1.0; 3]);
+        assert!((term_at(x, n, &near, &s).g - 1.0 / 0.16).abs() < 1e-4);
+    }
+}

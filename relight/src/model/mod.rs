@@ -1,0 +1,505 @@
+//! The forward model: what light reaches each row, from every kind of emitter a q3map2
+//! map uses, through the compile's own effects; the objective and its gradient.
+//!
+//! One module per term, each with its CPU evaluation and gradient:
+//!
+//! | term | module | parameters |
+//! |---|---|---|
+//! | point and spot lights | [`lights`] (WGSL: `light_*.wgsl`) | position, intensity, colour; a spot's axis and cone |
+//! | sun | [`sun`] | irradiance, colour (its direction by search) |
+//! | sky light | [`sky`] | irradiance |
+//! | surface lights | [`surface`] | radiance per emitting shader |
+//! | ambient, minlight, filter, dirt | [`compile`] | ambient, minlight; filter and dirt on or off |
+//! | bounced light | [`bounce`] | scale per channel |
+//!
+//! Per row `i` and channel `c`, in q3map2's order (see [`compile`]):
+//!
+//! ```text
+//! D   = sum_lights + sun + sky + sum_surfaces            irradiance of the emitters, W/m^2
+//! T_0 = dirt (ambient + Filter D)
+//! T_n = dirt Filter (k K rho T_{n-1})                     n = 1 .. bounces
+//! x   = albedo / pi max(sum_n T_n, minlight)  (+ k_g o)    radiance
+//! ```
+//!
+//! (`o` is the data's own gathered bounce, [`crate::gather`], used only where the
+//! operator `K` is not available: the placement's subsample.) The objective is
+//! [`crate::rows::residual`] summed over rows and channels. Its gradient runs the chain
+//! backwards: `rho_x -> rho_T` (zero where the floor holds) `-> rho_0 = sum_n (G^T)^n
+//! rho_T` with `G = dirt Filter k K rho` (`rho`: the bounce reflectance), `-> rho_D = Filter^T (dirt rho_0)`, and
+//! each term turns `rho_D` into its parameters' gradient. Everything but the lights runs
+//! here in f64; the lights run on a [`crate::backend::Backend`] (the CPU or wgpu).
+
+pub mod bounce;
+pub mod compile;
+pub mod lights;
+pub mod sky;
+pub mod sun;
+pub mod surface;
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+
+use crate::backend::Backend;
+use crate::error::Result;
+use crate::rows::{residual, Rows};
+use crate::trace::visibility::Visibility;
+pub use compile::Sparse;
+pub use lights::{Light, LightGrad, Spot};
+pub use sun::Sun;
+
+/// Every parameter of the model; an absent term is `None` (or off).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Model {
+    pub lights: Vec<Light>,
+    pub sun: Option<Sun>,
+    /// Sky-light irradiance scale, W/m^2 per channel ([`sky`]).
+    pub sky: Option<[f32; 3]>,
+    /// Radiance of each emitting shader of [`Bases::surfaces`], W/(m^2 sr); `None`: off.
+    pub surfaces: Vec<Option<[f32; 3]>>,
+    /// Ambient irradiance added before dirt, W/m^2.
+    pub ambient: Option<[f32; 3]>,
+    /// Scale of each bounce per channel, in (0, 1] ([`bounce`]).
+    pub bounce: Option<[f32; 3]>,
+    /// Floor of the total irradiance, W/m^2 (q3map2's `_minlight`).
+    pub minlight: Option<[f32; 3]>,
+    /// Scale of the data's own gathered bounce (placement only).
+    pub gathered: Option<[f32; 3]>,
+    /// q3map2's `-dirt` (the factor is [`Bases::dirt`]).
+    pub dirt: bool,
+    /// q3map2's `-filter`.
+    pub filter: bool,
+}
+
+/// What the model needs of the geometry, computed once per set of rows.
+#[derive(Debug, Clone, Default)]
+pub struct Bases {
+    pub sky: Option<sky::SkyBasis>,
+    pub surfaces: surface::SurfaceBasis,
+    /// Dirt factor per row.
+    pub dirt: Option<Vec<f32>>,
+    pub filter: Option<Sparse>,
+    /// The transport operator `K`.
+    pub bounce: Option<Sparse>,
+    /// The reflectance each row bounces light with ([`bounce::reflectance`]).
+    pub bounce_reflectance: Vec<[f32; 3]>,
+    /// Passes of bounced light (q3map2's `-bounce N`).
+    pub bounces: usize,
+    /// The data's own bounced radiance per row ([`crate::gather`]).
+    pub gathered: Option<Vec<[f32; 3]>>,
+    /// Sky flag of every mesh triangle (sunlight passes sky).
+    pub sky_triangles: Vec<bool>,
+}
+
+impl Bases {
+    /// The bases of a subset of the rows (`take`: their indices in these rows). The
+    /// filter and the bounce operator link rows to rows and are not carried over: the
+    /// subset uses the gathered bounce instead.
+    pub fn subset(&self, take: &[usize]) -> Bases {
+        let mut surfaces = surface::SurfaceBasis { groups: self.surfaces.groups.clone(), offsets: vec![0], entries: Vec::new(), rays: 0 };
+        if self.surfaces.offsets.len() > 1 {
+            for &i in take {
+                surfaces.entries.extend_from_slice(self.surfaces.row(i));
+                surfaces.offsets.push(surfaces.entries.len() as u32);
+            }
+        } else {
+            surfaces.offsets = vec![0; take.len() + 1];
+        }
+        Bases {
+            sky: self.sky.as_ref().map(|b| sky::SkyBasis { d: take.iter().map(|&i| b.d[i]).collect(), directions: b.directions.clone(), mean_cos_up: b.mean_cos_up }),
+            surfaces,
+            dirt: self.dirt.as_ref().map(|d| take.iter().map(|&i| d[i]).collect()),
+            filter: None,
+            bounce: None,
+            bounce_reflectance: Vec::new(),
+            bounces: 0,
+            gathered: self.gathered.as_ref().map(|o| take.iter().map(|&i| o[i]).collect()),
+            sky_triangles: self.sky_triangles.clone(),
+        }
+    }
+}
+
+/// Value and gradient of the objective.
+#[derive(Debug, Clone, Default)]
+pub struct Eval {
+    /// Objective F (without penalties).
+    pub f: f64,
+    /// `sqrt(sum A w (x - clamp(x, lo, hi))^2 / sum A w mid^2)`.
+    pub rel_error: f64,
+    pub lights: Vec<LightGrad>,
+    /// dF/dw (unnormalised direction) and dF/dS of the sun.
+    pub sun: ([f64; 3], [f64; 3]),
+    pub sky: [f64; 3],
+    pub surfaces: Vec<[f64; 3]>,
+    pub ambient: [f64; 3],
+    pub bounce: [f64; 3],
+    pub minlight: [f64; 3],
+    pub gathered: [f64; 3],
+}
+
+impl Eval {
+    /// An evaluation that failed (a backend error): NaN everywhere, so every loop stops.
+    pub fn failed(model: &Model) -> Eval {
+        Eval { f: f64::NAN, rel_error: f64::NAN, lights: vec![LightGrad::default(); model.lights.len()], surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() }
+    }
+}
+
+/// The forward chain's intermediate values (kept for the gradient).
+#[derive(Debug, Clone, Default)]
+pub struct Forward {
+    /// D: the emitters' irradiance.
+    pub direct: Vec<[f64; 3]>,
+    /// T_0, T_1, ...: the passes.
+    pub passes: Vec<Vec<[f64; 3]>>,
+    /// sum_n T_n.
+    pub total: Vec<[f64; 3]>,
+    /// The model's radiance per row.
+    pub x: Vec<[f64; 3]>,
+}
+
+/// Irradiance of the emitters that are not lights (sun, sky, surfaces), added to `e`.
+fn add_other_emitters(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e: &mut [[f64; 3]]) {
+    if let Some(s) = &model.sun {
+        s.add_irradiance(rows, vis, e);
+    }
+    if let (Some(k), Some(b)) = (model.sky, &bases.sky) {
+        b.add_irradiance(k, e);
+    }
+    if model.surfaces.iter().any(Option::is_some) {
+        bases.surfaces.add_irradiance(&model.surfaces, e);
+    }
+}
+
+fn dirt_of<'a>(model: &Model, bases: &'a Bases) -> Option<&'a [f32]> {
+    if model.dirt {
+        bases.dirt.as_deref()
+    } else {
+        None
+    }
+}
+
+fn filter_of<'a>(model: &Model, bases: &'a Bases) -> Option<&'a Sparse> {
+    if model.filter {
+        bases.filter.as_ref()
+    } else {
+        None
+    }
+}
+
+/// `dirt Filter v`.
+fn dirt_filter(model: &Model, bases: &Bases, v: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
+    let mut v = match filter_of(model, bases) {
+        Some(f) => f.apply(&v, None),
+        None => v,
+    };
+    if let Some(d) = dirt_of(model, bases) {
+        v.par_iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
+    }
+    v
+}
+
+/// `Filter^T dirt v` (the adjoint of [`dirt_filter`]).
+fn dirt_filter_adjoint(model: &Model, bases: &Bases, mut v: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
+    if let Some(d) = dirt_of(model, bases) {
+        v.par_iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
+    }
+    match filter_of(model, bases) {
+        Some(f) => f.apply_transposed(&v, None),
+        None => v,
+    }
+}
+
+/// The bounce operator of one pass without dirt and filter: `k K rho v`.
+fn bounce_step(k: [f32; 3], op: &Sparse, rho: &[[f32; 3]], v: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut out = op.apply(v, Some(rho));
+    out.par_iter_mut().for_each(|x| (0..3).for_each(|c| x[c] *= k[c] as f64));
+    out
+}
+
+/// Runs the forward chain from the lights' irradiance `e_lights` (see the module docs).
+pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_lights: &[[f32; 3]]) -> Forward {
+    let n = rows.len();
+    let mut direct: Vec<[f64; 3]> = if e_lights.len() == n { e_lights.iter().map(|e| e.map(|v| v as f64)).collect() } else { vec![[0.0; 3]; n] };
+    add_other_emitters(model, rows, bases, vis, &mut direct);
+    // T_0 = dirt (ambient + Filter D).
+    let mut f = match filter_of(model, bases) {
+        Some(op) => op.apply(&direct, None),
+        None => direct.clone(),
+    };
+    if let Some(a) = model.ambient {
+        f.iter_mut().for_each(|x| (0..3).for_each(|c| x[c] += a[c] as f64));
+    }
+    if let Some(d) = dirt_of(model, bases) {
+        f.iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
+    }
+    let mut passes = vec![f];
+    if let (Some(k), Some(op)) = (model.bounce, &bases.bounce) {
+        for _ in 0..bases.bounces {
+            let prev = passes.last().expect("T_0 is there");
+            let next = dirt_filter(model, bases, bounce_step(k, op, &bases.bounce_reflectance, prev));
+            passes.push(next);
+        }
+    }
+    let mut total = passes[0].clone();
+    for p in &passes[1..] {
+        total.iter_mut().zip(p).for_each(|(t, v)| (0..3).for_each(|c| t[c] += v[c]));
+    }
+    let x = (0..n)
+        .map(|i| {
+            [0, 1, 2].map(|c| {
+                let t = match model.minlight {
+                    Some(m) => total[i][c].max(m[c] as f64),
+                    None => total[i][c],
+                };
+                let mut v = rows.albedo[i][c] as f64 / PI * t;
+                if let (Some(k), Some(o)) = (model.gathered, &bases.gathered) {
+                    v += k[c] as f64 * o[i][c] as f64;
+                }
+                v
+            })
+        })
+        .collect();
+    Forward { direct, passes, total, x }
+}
+
+/// The model's radiance per row (no gradient).
+pub fn radiance(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Vec<[f64; 3]>> {
+    let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
+    Ok(forward(model, rows, bases, vis, &e).x)
+}
+
+/// Objective, relative error and gradient of every parameter.
+pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
+    let n = rows.len();
+    let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
+    let fw = forward(model, rows, bases, vis, &e);
+    // Residuals: rho_x and the objective.
+    let chunk = 8192;
+    let parts: Vec<(f64, f64, Vec<[f64; 3]>)> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|ci| {
+            let (mut f, mut num) = (0.0, 0.0);
+            let rho: Vec<[f64; 3]> = (ci * chunk..((ci + 1) * chunk).min(n))
+                .map(|i| {
+                    [0, 1, 2].map(|c| {
+                        let (fi, r, ni) = residual(fw.x[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64);
+                        f += fi;
+                        num += ni;
+                        r
+                    })
+                })
+                .collect();
+            (f, num, rho)
+        })
+        .collect();
+    let mut ev = Eval { surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
+    let mut num = 0.0;
+    let mut rho_x: Vec<[f64; 3]> = Vec::with_capacity(n);
+    for (f, nm, r) in parts {
+        ev.f += f;
+        num += nm;
+        rho_x.extend(r);
+    }
+    ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    // rho_T: through the albedo and the minlight floor.
+    let mut rho_t = vec![[0.0f64; 3]; n];
+    for i in 0..n {
+        for c in 0..3 {
+            let a = rows.albedo[i][c] as f64 / PI * rho_x[i][c];
+            match model.minlight {
+                Some(m) if fw.total[i][c] <= m[c] as f64 => ev.minlight[c] += a,
+                _ => rho_t[i][c] = a,
+            }
+            if let Some(o) = &bases.gathered {
+                ev.gathered[c] += rho_x[i][c] * o[i][c] as f64;
+            }
+        }
+    }
+    // rho_0 = sum_n (G^T)^n rho_T, and dF/dk = sum_n n/k <rho_T, T_n>.
+    let mut rho_0 = rho_t.clone();
+    if let (Some(k), Some(op)) = (model.bounce, &bases.bounce) {
+        for (p, t_n) in fw.passes.iter().enumerate().skip(1) {
+            for c in 0..3 {
+                let s: f64 = (0..n).map(|i| rho_t[i][c] * t_n[i][c]).sum();
+                ev.bounce[c] += p as f64 * s / (k[c] as f64).max(1e-12);
+            }
+        }
+        let mut a = rho_t;
+        for _ in 1..fw.passes.len() {
+            // G^T a = albedo K^T k Filter^T dirt a ... applied right to left.
+            let mut v = dirt_filter_adjoint(model, bases, a);
+            v.iter_mut().for_each(|x| (0..3).for_each(|c| x[c] *= k[c] as f64));
+            a = op.apply_transposed(&v, Some(&bases.bounce_reflectance));
+            rho_0.iter_mut().zip(&a).for_each(|(r, v)| (0..3).for_each(|c| r[c] += v[c]));
+        }
+    }
+    // Ambient (before dirt, after the filter), then rho_D = Filter^T (dirt rho_0).
+    if model.ambient.is_some() {
+        let d = dirt_of(model, bases);
+        for i in 0..n {
+            let w = d.map_or(1.0, |d| d[i] as f64);
+            for c in 0..3 {
+                ev.ambient[c] += w * rho_0[i][c];
+            }
+        }
+    }
+    let rho_d = dirt_filter_adjoint(model, bases, rho_0);
+    if let Some(s) = &model.sun {
+        ev.sun = s.gradient(rows, vis, &rho_d);
+    }
+    if let Some(b) = &bases.sky {
+        ev.sky = b.gradient(&rho_d);
+    }
+    if !model.surfaces.is_empty() {
+        ev.surfaces = bases.surfaces.gradient(&rho_d);
+        ev.surfaces.resize(model.surfaces.len(), [0.0; 3]);
+    }
+    ev.lights = if model.lights.is_empty() {
+        Vec::new()
+    } else {
+        let rho32: Vec<[f32; 3]> = rho_d.iter().map(|r| r.map(|v| v as f32)).collect();
+        backend.gradient(vis, &model.lights, &rho32)?
+    };
+    Ok(ev)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::Cpu;
+    use crate::testutil::room;
+    use crate::trace::bvh::Bvh;
+    use glam::Vec3;
+
+    /// Every parameter's analytic gradient against central differences, with every term
+    /// in the model at once (lights and a spot, sun, sky, surfaces, ambient, filter, dirt,
+    /// bounce, minlight).
+    #[test]
+    fn gradient_matches_central_differences() {
+        let (mesh, rows) = room(6);
+        let bvh = Bvh::build(&mesh);
+        let n = rows.len();
+        // Synthetic bases: any fixed numbers exercise the chain.
+        let sky = sky::SkyBasis { d: (0..n).map(|i| 0.2 + 0.1 * (i % 5) as f32).collect(), directions: vec![Vec3::Y], mean_cos_up: 1.0 };
+        let group = |name: &str| surface::Group { name: name.into(), materials: Vec::new(), source_rgb: [1.0; 3], patches: 1, area_m2: 1.0 };
+        let mut surfaces = surface::SurfaceBasis { groups: vec![group("a"), group("b")], offsets: vec![0], ..Default::default() };
+        for i in 0..n {
+            surfaces.entries.push((0, 0.5 + 0.05 * (i % 7) as f32));
+            if i % 3 == 0 {
+                surfaces.entries.push((1, 0.3));
+            }
+            surfaces.offsets.push(surfaces.entries.len() as u32);
+        }
+        let ring = |w: f32| {
+            let mut s = Sparse { offsets: vec![0], entries: Vec::new() };
+            for i in 0..n {
+                s.entries.push((i as u32, 1.0 - 2.0 * w));
+                s.entries.push((((i + 1) % n) as u32, w));
+                s.entries.push((((i + 7) % n) as u32, w));
+                s.offsets.push(s.entries.len() as u32);
+            }
+            s
+        };
+        let bases = Bases {
+            sky: Some(sky),
+            surfaces,
+            dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
+            filter: Some(ring(0.2)),
+            bounce: Some(ring(0.3)),
+            bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
+            bounces: 3,
+            gathered: Some((0..n).map(|i| [0.01 * (i % 4) as f32, 0.02, 0.015]).collect()),
+            sky_triangles: vec![true; mesh.triangles.len()],
+        };
+        let model = Model {
+            lights: vec![
+                Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0, 1.5, 1.0]),
+                Light { pos: Vec3::new(2.6, 2.4, 2.2), rgb: [0.7, 1.2, 1.9], spot: Some(Spot { axis: Vec3::new(-0.2, -1.0, -0.1).normalize(), radius_by_dist: 0.9 }) },
+            ],
+            sun: Some(Sun { to_sun: Vec3::new(0.3, 0.9, -0.2).normalize(), rgb: [1.5, 1.2, 0.9] }),
+            sky: Some([0.3, 0.4, 0.5]),
+            surfaces: vec![Some([0.2, 0.1, 0.15]), Some([0.05, 0.06, 0.07])],
+            ambient: Some([0.01, 0.02, 0.015]),
+            bounce: Some([0.8, 0.6, 0.7]),
+            minlight: Some([0.05, 0.05, 0.05]),
+            gathered: Some([0.5, 0.4, 0.3]),
+            dirt: true,
+            filter: true,
+        };
+        let mut vis = Visibility::default();
+        vis.update(&model.lights, 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
+        let sky_tri = vec![true; mesh.triangles.len()];
+        vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
+        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        // The floor in the widest gap between the lowest third of the rows' total
+        // irradiance: it binds on some rows, and no row sits on its kink.
+        let mut model = model;
+        let e = cpu.irradiance(&vis, &model.lights).unwrap();
+        let mut totals: Vec<f64> = forward(&Model { minlight: None, ..model.clone() }, &rows, &bases, &vis, &e).total.iter().map(|t| t[1]).collect();
+        totals.sort_by(f64::total_cmp);
+        let k = (1..n / 3).max_by(|&a, &b| (totals[a] - totals[a - 1]).total_cmp(&(totals[b] - totals[b - 1]))).unwrap();
+        model.minlight = Some([(0.5 * (totals[k] + totals[k - 1])) as f32; 3]);
+        let ev = evaluate(&model, &rows, &bases, &vis, &mut cpu).unwrap();
+        assert!(ev.f > 0.0);
+        let f = |m: &Model| {
+            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+            evaluate(m, &rows, &bases, &vis, &mut cpu).unwrap().f
+        };
+        let check = |name: &str, an: f64, plus: Model, minus: Model, h: f64| {
+            let fd = (f(&plus) - f(&minus)) / (2.0 * h);
+            let scale = an.abs().max(fd.abs()).max(1e-9 * ev.f);
+            assert!((fd - an).abs() <= 3e-3 * scale, "{name}: analytic {an} vs central difference {fd}");
+        };
+        let h = 1e-3f32;
+        for j in 0..2 {
+            for q in 0..3 {
+                let (mut a, mut b) = (model.clone(), model.clone());
+                a.lights[j].pos[q] += h;
+                b.lights[j].pos[q] -= h;
+                check(&format!("light {j} pos {q}"), ev.lights[j].pos[q], a, b, h as f64);
+                let (mut a, mut b) = (model.clone(), model.clone());
+                a.lights[j].rgb[q] += h;
+                b.lights[j].rgb[q] -= h;
+                check(&format!("light {j} rgb {q}"), ev.lights[j].rgb[q], a, b, h as f64);
+            }
+        }
+        for q in 0..3 {
+            let (mut a, mut b) = (model.clone(), model.clone());
+            a.lights[1].spot.as_mut().unwrap().axis[q] += h;
+            b.lights[1].spot.as_mut().unwrap().axis[q] -= h;
+            check(&format!("spot axis {q}"), ev.lights[1].axis[q], a, b, h as f64);
+        }
+        let (mut a, mut b) = (model.clone(), model.clone());
+        a.lights[1].spot.as_mut().unwrap().radius_by_dist += h;
+        b.lights[1].spot.as_mut().unwrap().radius_by_dist -= h;
+        check("spot radius", ev.lights[1].radius_by_dist, a, b, h as f64);
+        let h = 1e-4f32;
+        for c in 0..3 {
+            let per = |set: &dyn Fn(&mut Model, f32)| {
+                let (mut a, mut b) = (model.clone(), model.clone());
+                set(&mut a, h);
+                set(&mut b, -h);
+                (a, b)
+            };
+            let (a, b) = per(&|m, d| m.sun.as_mut().unwrap().rgb[c] += d);
+            check("sun irradiance", ev.sun.1[c], a, b, h as f64);
+            let (a, b) = per(&|m, d| m.sun.as_mut().unwrap().to_sun[c] += d);
+            check("sun direction", ev.sun.0[c], a, b, h as f64);
+            let (a, b) = per(&|m, d| m.sky.as_mut().unwrap()[c] += d);
+            check("sky", ev.sky[c], a, b, h as f64);
+            for s in 0..2 {
+                let (a, b) = per(&|m, d| m.surfaces[s].as_mut().unwrap()[c] += d);
+                check(&format!("surface {s}"), ev.surfaces[s][c], a, b, h as f64);
+            }
+            let (a, b) = per(&|m, d| m.ambient.as_mut().unwrap()[c] += d);
+            check("ambient", ev.ambient[c], a, b, h as f64);
+            let (a, b) = per(&|m, d| m.bounce.as_mut().unwrap()[c] += d);
+            check("bounce", ev.bounce[c], a, b, h as f64);
+            let (a, b) = per(&|m, d| m.minlight.as_mut().unwrap()[c] += d);
+            check("minlight", ev.minlight[c], a, b, h as f64);
+            let (a, b) = per(&|m, d| m.gathered.as_mut().unwrap()[c] += d);
+            check("gathered", ev.gathered[c], a, b, h as f64);
+        }
+        assert!(ev.minlight.iter().any(|&g| g != 0.0), "the floor holds somewhere");
+    }
+}

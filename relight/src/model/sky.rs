@@ -1,0 +1,76 @@
+//! Sky light: the light of an overcast sky through the map's sky surfaces (q3map2's
+//! `q3map_skyLight value iterations`).
+//!
+//! q3map2 simulates it with a set of suns spread over the upper hemisphere
+//! ([`q3gltf_convert::units::q3map2_sky_suns`]), each adding `value / count x cos` bytes
+//! where the sky is visible. The model keeps their geometry once, per row,
+//!
+//! ```text
+//! D_i = 1/N sum_k max(0, n_i . s_k) V_ik          (V_ik: the ray towards s_k reaches sky)
+//! ```
+//!
+//! and scales it by a fitted irradiance `K_c` [W/m^2]: `E_ic = K_c D_i`. A q3map2 sky
+//! light of value `v` is `K = pi e_per_byte v`; written for Blender as emission of the
+//! sky surfaces with radiance `K mean_k(cos s_k) / pi` (the same irradiance on an open,
+//! upward-facing surface). Gradient: `dF/dK_c = sum_i rho_ic D_i`.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::rows::Rows;
+use crate::trace::bvh::Bvh;
+
+/// The sky basis `D_i` and the directions it was traced for.
+#[derive(Debug, Clone, Default)]
+pub struct SkyBasis {
+    pub d: Vec<f32>,
+    /// Unit directions towards the sky suns, glTF axes.
+    pub directions: Vec<Vec3>,
+    /// Mean upward cosine of the directions (the open-sky value of `D`).
+    pub mean_cos_up: f32,
+}
+
+/// q3map2's sky-sun directions for `iterations`, in glTF axes (`(x, y, z)q3 -> (x, z, -y)`).
+pub fn directions(iterations: u32) -> Vec<Vec3> {
+    q3gltf_convert::units::q3map2_sky_suns(iterations).into_iter().map(|d| Vec3::new(d[0] as f32, d[2] as f32, -d[1] as f32)).collect()
+}
+
+/// Traces the basis for `dirs` (rayon over rows). `sky[t]` marks sky triangles.
+pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
+    let n = dirs.len().max(1) as f32;
+    let d = (0..rows.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut s = 0.0f32;
+            for &w in dirs {
+                let c = rows.normal[i].dot(w);
+                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], rows.normal[i], w, &rows.sampling, sky) {
+                    s += c;
+                }
+            }
+            s / n
+        })
+        .collect();
+    let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / n;
+    SkyBasis { d, directions: dirs.to_vec(), mean_cos_up }
+}
+
+impl SkyBasis {
+    pub fn add_irradiance(&self, k: [f32; 3], e: &mut [[f64; 3]]) {
+        for (ei, &d) in e.iter_mut().zip(&self.d) {
+            for c in 0..3 {
+                ei[c] += k[c] as f64 * d as f64;
+            }
+        }
+    }
+
+    pub fn gradient(&self, rho: &[[f64; 3]]) -> [f64; 3] {
+        let mut g = [0.0; 3];
+        for (r, &d) in rho.iter().zip(&self.d) {
+            for c in 0..3 {
+                g[c] += r[c] * d as f64;
+            }
+        }
+        g
+    }
+}

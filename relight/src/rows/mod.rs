@@ -1,0 +1,238 @@
+//! The rows of the objective: the surface points where the model is compared with the
+//! baked lighting, and what the data says there.
+//!
+//! A row is a lightmap texel's sample point ([`luxel`], the default) or a (subdivided) mesh
+//! vertex carrying the thesis's mass-lumped projection ([`projection`]); the model, the
+//! kernels and the fit treat both alike. Each row holds its position and normal (m,
+//! relative to `Scene::origin`), its area `A` (m^2), its linear albedo, and the data as
+//! an interval of radiance per channel:
+//!
+//! - weight `w` of a two-sided target `[lo, hi]`: a lightmap byte `b` stands for any
+//!   value in `[b, b + 1)` (q3map2 truncates), so the data is consistent with every model
+//!   value in that interval (`lo == hi` for the projection, whose values are averages);
+//! - weight `1 - w` of a lower bound `lower` where the data was clamped (censored).
+//!
+//! The objective's term of one row and channel is
+//!
+//! ```text
+//! f = 1/2 A [ w (x - clamp(x, lo, hi))^2 + (1 - w) min(0, x - lower)^2 ]
+//! ```
+//!
+//! and the relative error `sqrt(sum A w (x - clamp(x, lo, hi))^2 / sum A w mid^2)` with
+//! `mid = (lo + hi) / 2`: zero for a model that every byte agrees with.
+//!
+//! [`Sampling`] holds how the data was sampled (q3map2's rules for its lightmaps).
+
+pub mod luxel;
+pub mod projection;
+
+use glam::Vec3;
+
+/// How the baked data was sampled: the rules the model and the shadow rays follow to
+/// compare like with like (see [`crate::scene::q3map2`] for q3map2's values).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Sampling {
+    /// A point or spot light's inverse square never comes closer than this, m.
+    pub eps: f32,
+    /// Shadow rays start this far along the normal, m.
+    pub ray_offset: f32,
+    /// Shadow rays ignore geometry closer than this to their start, m.
+    pub inhibit: f32,
+    /// A point or spot light adds nothing where its brightest channel's irradiance would
+    /// be at most this, W/m^2 (0: no cut).
+    pub falloff: f32,
+    /// Width of a spot light's soft edge, m (q3map2: 32 units).
+    pub spot_ramp: f32,
+}
+
+impl Sampling {
+    /// Plain physical sampling for a scene of this diagonal (m): no cut, tiny offsets.
+    pub fn plain(scene_diagonal: f32) -> Sampling {
+        Sampling { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), inhibit: 0.0, falloff: 0.0, spot_ramp: 32.0 * 0.0254 }
+    }
+
+    /// q3map2's sampling for a scene of `units_m` meters per Quake unit whose lightmaps
+    /// decode with `overbright_bits`: the inverse square never closer than 16 units,
+    /// shadow rays blind within 1.5 units of the sample origin, and a light's contribution
+    /// of at most 1 byte left out.
+    pub fn q3map2(scene_diagonal: f32, units_m: f32, overbright_bits: u32) -> Sampling {
+        use crate::scene::q3map2::*;
+        let falloff = (FALLOFF_TOLERANCE_BYTES as f64 * std::f64::consts::PI * q3gltf_convert::units::e_per_byte(overbright_bits)) as f32;
+        Sampling { eps: MIN_DISTANCE_UNITS * units_m, inhibit: INHIBIT_RADIUS_UNITS * units_m, falloff, spot_ramp: SPOT_RAMP_UNITS * units_m, ..Sampling::plain(scene_diagonal) }
+    }
+}
+
+/// The rows of the objective (see the module docs).
+#[derive(Debug, Clone, Default)]
+pub struct Rows {
+    /// Mesh vertex of each row (`u32::MAX` for a luxel row).
+    pub vertex: Vec<u32>,
+    /// Material of each row (the report's breakdown by material).
+    pub material: Vec<u32>,
+    /// Lightmap texture and texel `(x, y)` of a luxel row (`u32::MAX` for a vertex row).
+    pub texel: Vec<[u32; 3]>,
+    pub pos: Vec<Vec3>,
+    pub normal: Vec<Vec3>,
+    pub albedo: Vec<[f32; 3]>,
+    /// Lower end of the data's interval, radiance.
+    pub lo: Vec<[f32; 3]>,
+    /// Upper end of the data's interval, radiance (`>= lo`).
+    pub hi: Vec<[f32; 3]>,
+    /// Weight of the interval, in [0, 1]; the rest is the lower bound's.
+    pub weight: Vec<[f32; 3]>,
+    /// Lower bound where the data was censored.
+    pub lower: Vec<[f32; 3]>,
+    /// Row area A_i, m^2.
+    pub area: Vec<f32>,
+    pub sampling: Sampling,
+    /// `sum A w mid^2`, the error's denominator (0 only without data).
+    pub norm2: f64,
+}
+
+/// One row as pushed by the builders.
+#[derive(Debug, Clone, Copy)]
+pub struct Row {
+    pub vertex: u32,
+    pub material: u32,
+    pub texel: [u32; 3],
+    pub pos: Vec3,
+    pub normal: Vec3,
+    pub albedo: [f32; 3],
+    pub lo: [f32; 3],
+    pub hi: [f32; 3],
+    pub weight: [f32; 3],
+    pub lower: [f32; 3],
+    pub area: f32,
+}
+
+impl Rows {
+    /// No rows yet, with these sampling rules.
+    pub fn new(sampling: Sampling) -> Rows {
+        Rows { sampling, ..Default::default() }
+    }
+
+    pub fn push(&mut self, r: Row) {
+        self.vertex.push(r.vertex);
+        self.material.push(r.material);
+        self.texel.push(r.texel);
+        self.pos.push(r.pos);
+        self.normal.push(r.normal);
+        self.albedo.push(r.albedo);
+        self.lo.push(r.lo);
+        self.hi.push(r.hi);
+        self.weight.push(r.weight);
+        self.lower.push(r.lower);
+        self.area.push(r.area);
+    }
+
+    pub fn row(&self, i: usize) -> Row {
+        Row {
+            vertex: self.vertex[i],
+            material: self.material[i],
+            texel: self.texel[i],
+            pos: self.pos[i],
+            normal: self.normal[i],
+            albedo: self.albedo[i],
+            lo: self.lo[i],
+            hi: self.hi[i],
+            weight: self.weight[i],
+            lower: self.lower[i],
+            area: self.area[i],
+        }
+    }
+
+    /// Completes rows pushed one by one (computes the error's denominator).
+    pub fn finish(&mut self) {
+        self.norm2 = (0..self.len()).map(|i| (0..3).map(|c| self.area[i] as f64 * self.weight[i][c] as f64 * self.mid(i, c).powi(2)).sum::<f64>()).sum();
+    }
+
+    /// The middle of row `i`'s interval in channel `c`.
+    #[inline]
+    pub fn mid(&self, i: usize, c: usize) -> f64 {
+        0.5 * (self.lo[i][c] as f64 + self.hi[i][c] as f64)
+    }
+
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+
+    /// Whether any row carries data (an interval or a lower bound).
+    pub fn has_data(&self) -> bool {
+        (0..self.len()).any(|i| (0..3).any(|c| self.weight[i][c] > 0.0 || self.lower[i][c] > 0.0))
+    }
+
+    /// Keeps the rows whose flag is true.
+    pub fn retain(&mut self, keep: &[bool]) {
+        let old = std::mem::replace(self, Rows::new(self.sampling));
+        for (i, &k) in keep.iter().enumerate().take(old.len()) {
+            if k {
+                self.push(old.row(i));
+            }
+        }
+        self.finish();
+    }
+
+    /// A subset of at most about `max` rows: every `stride`-th one, starting at
+    /// `seed % stride` (areas scaled so sums stay comparable). Returns the subset and the
+    /// indices it took.
+    pub fn subsample(&self, max: usize, seed: u64) -> (Rows, Vec<usize>) {
+        let stride = self.len().div_ceil(max.max(1)).max(1);
+        let take: Vec<usize> = if stride == 1 { (0..self.len()).collect() } else { ((seed % stride as u64) as usize..self.len()).step_by(stride).collect() };
+        let mut p = Rows::new(self.sampling);
+        for &i in &take {
+            let mut r = self.row(i);
+            r.area *= stride as f32;
+            p.push(r);
+        }
+        p.finish();
+        (p, take)
+    }
+}
+
+/// One row-channel's objective term: `(f, dF/dx, A w (x - clamp(x, lo, hi))^2)` (see the
+/// module docs).
+#[inline]
+pub fn residual(x: f64, lo: f64, hi: f64, w: f64, lower: f64, area: f64) -> (f64, f64, f64) {
+    let two = x - x.clamp(lo, hi.max(lo));
+    let one = (x - lower).min(0.0);
+    let f = 0.5 * area * (w * two * two + (1.0 - w) * one * one);
+    let rho = area * (w * two + (1.0 - w) * one);
+    (f, rho, area * w * two * two)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn residual_is_zero_inside_the_interval_and_quadratic_outside() {
+        assert_eq!(residual(1.5, 1.0, 2.0, 1.0, 0.0, 2.0), (0.0, 0.0, 0.0));
+        let (f, rho, n) = residual(3.0, 1.0, 2.0, 1.0, 0.0, 2.0);
+        assert_eq!((f, rho, n), (1.0, 2.0, 2.0));
+        let (f, rho, _) = residual(0.5, 1.0, 2.0, 1.0, 0.0, 2.0);
+        assert_eq!((f, rho), (0.25, -1.0));
+        // A censored channel (w = 0): only below the bound costs.
+        assert_eq!(residual(5.0, 0.0, 0.0, 0.0, 4.0, 1.0).0, 0.0);
+        assert_eq!(residual(3.0, 0.0, 0.0, 0.0, 4.0, 1.0), (0.5, -1.0, 0.0));
+    }
+
+    #[test]
+    fn retain_and_subsample_keep_rows_whole() {
+        let mut rows = Rows::new(Sampling::plain(1.0));
+        for k in 0..10 {
+            let v = k as f32;
+            rows.push(Row { vertex: k, material: 0, texel: [u32::MAX; 3], pos: Vec3::splat(v), normal: Vec3::Y, albedo: [v; 3], lo: [v; 3], hi: [v + 1.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0 });
+        }
+        rows.finish();
+        let (sub, take) = rows.subsample(5, 1);
+        assert_eq!(take, vec![1, 3, 5, 7, 9]);
+        assert_eq!(sub.area[0], 2.0);
+        assert_eq!(sub.lo[2], [5.0; 3]);
+        rows.retain(&(0..10).map(|k| k % 3 == 0).collect::<Vec<_>>());
+        assert_eq!(rows.vertex, vec![0, 3, 6, 9]);
+        assert!((rows.norm2 - 3.0 * (0.25 + 12.25 + 42.25 + 90.25)).abs() < 1e-9);
+    }
+}

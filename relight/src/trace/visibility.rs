@@ -1,0 +1,186 @@
+//! Shadow-ray visibility of every light from every row, one bit per pair, cached
+//! between iterations: a light is re-traced only when it moved more than a tolerance
+//! since its last trace (colour and intensity phases never re-trace).
+//!
+//! A bit is set when the light is in front of the row (`n . d > 0`) and the segment from
+//! `x + n ray_offset` to the light meets no occluder farther than the inhibit radius from
+//! its start ([`crate::rows::Sampling`]).
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::model::Light;
+use crate::rows::{Rows, Sampling};
+use crate::trace::bvh::Bvh;
+
+
+#[derive(Debug, Clone, Default)]
+pub struct Visibility {
+    /// Bits per light, `words_per_light` u32 words each.
+    pub bits: Vec<Vec<u32>>,
+    /// Light position at its last trace.
+    pub traced_at: Vec<Vec3>,
+    /// The reach it was traced to (rows farther away have their bit clear).
+    pub traced_reach: Vec<f32>,
+    /// The sun's bits and the direction they were traced for (see [`sun_visible_from`]).
+    pub sun: Option<(Vec3, Vec<u32>)>,
+    /// Rays traced so far (all lights, all updates).
+    pub rays: u64,
+}
+
+impl Visibility {
+    #[inline]
+    pub fn visible(&self, light: usize, vertex: usize) -> bool {
+        self.bits[light][vertex >> 5] >> (vertex & 31) & 1 == 1
+    }
+
+    /// Whether the sun (as last traced) reaches `vertex`.
+    #[inline]
+    pub fn sun_visible(&self, vertex: usize) -> bool {
+        self.sun.as_ref().is_some_and(|(_, b)| b[vertex >> 5] >> (vertex & 31) & 1 == 1)
+    }
+
+    /// Brings the sun's bits up to date: re-traced (with `trace`) when the direction turned
+    /// by more than `tolerance` radians since the last trace; dropped without a sun.
+    pub fn update_sun(&mut self, to_sun: Option<Vec3>, tolerance: f32, n_vertices: usize, trace: &mut dyn FnMut(Vec3) -> Vec<u32>) {
+        let Some(dir) = to_sun else {
+            self.sun = None;
+            return;
+        };
+        let fresh = self.sun.as_ref().is_some_and(|(d, _)| d.dot(dir).clamp(-1.0, 1.0).acos() <= tolerance);
+        if !fresh {
+            self.sun = Some((dir, trace(dir)));
+            self.rays += n_vertices as u64;
+        }
+    }
+
+    /// Brings the cache up to date with `lights`: traces (with `trace`, a batch of light
+    /// positions and reaches to bit vectors) new lights, lights that moved more than
+    /// `tolerance` meters and lights whose reach ([`reach`] under `sampling`) outgrew the
+    /// one they were traced to; drops lights beyond `lights.len()`. Returns how many lights
+    /// were traced.
+    pub fn update(&mut self, lights: &[Light], tolerance: f32, sampling: &Sampling, n_vertices: usize, trace: &mut dyn FnMut(&[(Vec3, f32)]) -> crate::error::Result<Vec<Vec<u32>>>) -> crate::error::Result<usize> {
+        self.bits.truncate(lights.len());
+        self.traced_at.truncate(lights.len());
+        self.traced_reach.truncate(lights.len());
+        let stale: Vec<usize> = (0..lights.len())
+            .filter(|&j| j >= self.bits.len() || (self.traced_at[j] - lights[j].pos).length() > tolerance || reach(&lights[j], sampling, 1.0) > self.traced_reach[j])
+            .collect();
+        if stale.is_empty() {
+            return Ok(0);
+        }
+        // Traced with room to grow, so that a light brightening a little is not re-traced.
+        let batch: Vec<(Vec3, f32)> = stale.iter().map(|&j| (lights[j].pos, reach(&lights[j], sampling, REACH_MARGIN))).collect();
+        let traced = trace(&batch)?;
+        self.rays += (n_vertices * stale.len()) as u64;
+        for ((&j, words), &(_, r)) in stale.iter().zip(traced).zip(&batch) {
+            if j < self.bits.len() {
+                self.bits[j] = words;
+                self.traced_at[j] = lights[j].pos;
+                self.traced_reach[j] = r;
+            } else {
+                self.bits.push(words);
+                self.traced_at.push(lights[j].pos);
+                self.traced_reach.push(r);
+            }
+        }
+        Ok(stale.len())
+    }
+
+    /// Replaces the cache of light `j` (used when lights are reordered or removed).
+    pub fn remove(&mut self, j: usize) {
+        self.bits.remove(j);
+        self.traced_at.remove(j);
+        self.traced_reach.remove(j);
+    }
+}
+
+/// Sun visibility: the sun (direction `to_sun`, unit) is in front of the row and the ray
+/// from `x + n * offset` towards it first meets a sky surface (`sky[t]` for mesh triangle
+/// `t`), as q3map2 decides (a Quake map is sealed: sunlight comes in through sky
+/// surfaces only; a ray that leaves through a gap of the converted mesh brings nothing).
+/// A scene without sky surfaces (a glTF from elsewhere) is open: a ray that escapes sees
+/// the sun.
+pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool]) -> bool {
+    if !(n.dot(to_sun) > 0.0) {
+        return false;
+    }
+    let reach = bvh.reach();
+    let o = x + n * s.ray_offset;
+    match bvh.first_hit_after(o, to_sun * reach, s.inhibit / reach, 1.0) {
+        None => !sky.iter().any(|&k| k),
+        Some((_, t)) => sky.get(t as usize).copied().unwrap_or(false),
+    }
+}
+
+/// Sun visibility bits of every problem row (rayon, 32 per task).
+pub fn trace_sun(bvh: &Bvh, pb: &Rows, to_sun: Vec3, sky: &[bool]) -> Vec<u32> {
+    let n = pb.len();
+    (0..n.div_ceil(32))
+        .into_par_iter()
+        .map(|w| {
+            let mut word = 0u32;
+            for b in 0..32.min(n - w * 32) {
+                let i = w * 32 + b;
+                if sun_visible_from(bvh, pb.pos[i], pb.normal[i], to_sun, &pb.sampling, sky) {
+                    word |= 1 << b;
+                }
+            }
+            word
+        })
+        .collect()
+}
+
+/// How far a light can add anything under `sampling`: beyond `sqrt(I_max / falloff)` its
+/// irradiance (at most `I / d^2`) is below the falloff tolerance; times `margin`.
+/// Unlimited without a falloff.
+pub fn reach(l: &Light, sampling: &Sampling, margin: f32) -> f32 {
+    if sampling.falloff > 0.0 {
+        (l.max_rgb().max(0.0) / sampling.falloff).sqrt() * margin
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// The reach a light is traced to, relative to its current one: it may brighten by
+/// `REACH_MARGIN^2` before it is traced again.
+pub const REACH_MARGIN: f32 = 1.5;
+
+/// Visibility bits of one light position from every row within `reach` meters (rayon,
+/// 32 per task); farther rows get a clear bit without a ray.
+pub fn trace_light(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32) -> Vec<u32> {
+    let n = pb.len();
+    (0..n.div_ceil(32))
+        .into_par_iter()
+        .map(|w| {
+            let mut word = 0u32;
+            for b in 0..32 {
+                let i = w * 32 + b;
+                if i >= n {
+                    break;
+                }
+                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_from(bvh, pb.pos[i], pb.normal[i], light, &pb.sampling) {
+                    word |= 1 << b;
+                }
+            }
+            word
+        })
+        .collect()
+}
+
+/// One shadow ray (the CPU reference of the WGSL `visible_from`): from `x + n offset`
+/// to the light, ignoring geometry within `inhibit` of the ray's start.
+pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> bool {
+    let (offset, inhibit) = (s.ray_offset, s.inhibit);
+    if n.dot(light - x) <= 0.0 {
+        return false;
+    }
+    let o = x + n * offset;
+    let d = light - o;
+    let len = d.length();
+    if !(len > offset.max(inhibit)) {
+        // The light touches the surface: lit, nothing can be in between.
+        return len.is_finite();
+    }
+    !bvh.occluded(o, d, inhibit / len, 1.0 - offset / len)
+}
