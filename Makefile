@@ -59,7 +59,7 @@ sample:
 	$(CARGO) run --release -p q3gltf-samples --bin make-sample -- samples/sample
 
 data:
-	@bash $(FETCH)
+	@bash $(FETCH) --oacmp >/dev/null
 
 # Every map of the game data, one target each so that `make -j` runs them in parallel.
 maps: build

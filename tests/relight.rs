@@ -198,7 +198,9 @@ fn real_map_end_to_end_on_the_wgpu_backend() {
 /// vertices in a million are allowed up to 1e-2.
 #[test]
 fn target_projection_wgpu_agrees_with_cpu_on_real_maps() {
-    use q3gltf_relight::{gltf_in, gpu, subdivide, target};
+    use q3gltf_relight::io::gltf_in;
+    use q3gltf_relight::rows::projection as target;
+    use q3gltf_relight::{gpu, subdivide};
     let dir = tmp("target-gpu");
     let sample = convert_sample(&dir);
     let map = dir.join("oa_dm1.glb");
@@ -259,18 +261,17 @@ fn far_from_the_origin_the_fit_is_unchanged() {
 /// in the sample's rooms, at other places and in other colours than its entities.
 const SYNTHETIC_TRUTH: [([f64; 3], [f32; 3]); 3] = [([6.2, 4.6, -4.5], [70.0, 55.0, 40.0]), ([19.9, 3.7, -3.6], [25.0, 40.0, 60.0]), ([21.5, 2.6, -7.8], [30.0, 20.0, 12.0])];
 
-/// The converted sample with its lightmap re-rendered by relight's CPU reference from
-/// [`SYNTHETIC_TRUTH`], stored as 8-bit lightmap texels as q3map2 would (overbright 2,
-/// scaled down keeping hue above 255). With `bounces`, the data also holds the light
-/// reflected by the scene itself: `t = D + gather(t)`, solved by fixed-point iteration
-/// with relight's own gather ([`q3gltf_relight::indirect`]), as q3map2 `-bounce` would.
+/// The converted sample with its lightmap re-rendered by relight's CPU reference
+/// ([`q3gltf_relight::pipeline::render`]) from [`SYNTHETIC_TRUTH`], stored as 8-bit
+/// lightmap texels as q3map2 would (overbright 2, truncated to a byte, scaled down keeping
+/// hue above 255). With `bounces`, the data also holds [`SYNTHETIC_BOUNCES`] passes of the
+/// lights' own bounced light (the model's bounce at scale 1, what q3map2 `-bounce` adds).
 /// With `sun`, the sample's walls become sky (extras `q3_sky`: no target, sunlight passes
 /// them) and [`SYNTHETIC_SUN`] shines in. Returns the glTF and the scene diagonal (m).
 fn synthetic_scene(dir: &Path, bounces: bool, sun: bool) -> (PathBuf, f64) {
-    use q3gltf_relight::bvh::Bvh;
-    use q3gltf_relight::model::{radiance, Light, Sun, Terms};
-    use q3gltf_relight::visibility::{trace_light, trace_sun, Visibility};
-    use q3gltf_relight::{gltf_in, indirect, luxel, target::Target};
+    use q3gltf_relight::io::gltf_in;
+    use q3gltf_relight::model::{Light, Model, Sun};
+    use q3gltf_relight::trace::bvh::Bvh;
     let gltf = convert_sample(dir);
     // The sample's vertex-lit surface keeps q3map2's colours, which the truth did not make:
     // declare it unlit (it still casts shadows).
@@ -288,43 +289,29 @@ fn synthetic_scene(dir: &Path, bounces: bool, sun: bool) -> (PathBuf, f64) {
     assert_eq!(scene.materials.iter().any(|m| m.sky), sun, "the wall material is sky exactly when asked");
     let (lo, hi) = scene.mesh.bounds();
     let diag = (hi - lo).length() as f64;
-    let lx = luxel::problem(&scene, &Target::empty(scene.mesh.positions.len()), diag as f32);
     let bvh = Bvh::build(&scene.mesh);
-    let lights: Vec<Light> = SYNTHETIC_TRUTH.iter().map(|(p, rgb)| Light { pos: (glam::DVec3::from_array(*p) - scene.origin).as_vec3(), rgb: *rgb }).collect();
+    let lights: Vec<Light> = SYNTHETIC_TRUTH.iter().map(|(p, rgb)| Light::point((glam::DVec3::from_array(*p) - scene.origin).as_vec3(), *rgb)).collect();
     for l in &lights {
         let (d, _) = bvh.nearest(l.pos).unwrap();
         assert!(d > 0.5, "a truth light is {d} m from a surface: move it into free space");
     }
-    let pb = &lx.problem;
-    let mut vis = Visibility::default();
-    vis.update(&lights, 0.0, pb.len(), &mut |ps| Ok(ps.iter().map(|&q| trace_light(&bvh, pb, q)).collect())).unwrap();
-    // Direct radiance per luxel, then the lightmap value e = radiance / albedo.
-    let mut terms = Terms::default();
-    if sun {
-        let s = Sun { to_sun: glam::Vec3::from(SYNTHETIC_SUN.0).normalize(), rgb: SYNTHETIC_SUN.1 };
-        let sky: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
-        vis.update_sun(Some(s.to_sun), 0.0, pb.len(), &mut |d| trace_sun(&bvh, pb, d, &sky));
-        assert!(vis.sun.as_ref().unwrap().1.iter().map(|w| w.count_ones()).sum::<u32>() > 100, "the sun reaches the floor");
-        terms.sun = Some(s);
-    }
-    let direct = radiance(pb, &vis, &lights, terms);
-    let mut value = direct.clone();
-    let rounds = if bounces { 4 } else { 1 };
-    for round in 0..rounds {
-        if round > 0 {
-            let mut with = pb.clone();
-            indirect::gather(&scene, &bvh, &mut with, 16);
-            value = (0..pb.len()).map(|i| [0, 1, 2].map(|c| direct[i][c] + with.indirect[i][c])).collect();
-        }
-        for (i, &[tex, x, y]) in lx.texels.iter().enumerate() {
-            let t = &mut scene.textures[tex as usize];
-            // e = byte / 255 * 2^2 (CONVENTIONS.md), rounded; above 255 scaled down keeping hue.
-            let b = [0, 1, 2].map(|c| value[i][c] as f64 / (pb.albedo[i][c] as f64).max(1e-6) / 4.0 * 255.0);
-            let m = b.iter().copied().fold(255.0, f64::max);
-            let o = ((y * t.width + x) * 4) as usize;
-            for c in 0..3 {
-                t.rgba8[o + c] = (b[c] * 255.0 / m).round() as u8;
-            }
+    let model = Model {
+        lights,
+        sun: sun.then(|| Sun { to_sun: glam::Vec3::from(SYNTHETIC_SUN.0).normalize(), rgb: SYNTHETIC_SUN.1 }),
+        bounce: bounces.then_some([1.0; 3]),
+        ..Model::default()
+    };
+    let passes = if bounces { SYNTHETIC_BOUNCES } else { 0 };
+    let r = q3gltf_relight::pipeline::render(&scene, &model, passes, 16).unwrap();
+    let ob = 2;
+    for (i, &[tex, x, y]) in r.rows.texel.iter().enumerate() {
+        let t = &mut scene.textures[tex as usize];
+        // e = byte / 255 * 2^2 (CONVENTIONS.md), truncated; above 255 scaled down keeping hue.
+        let b = [0, 1, 2].map(|c| r.radiance[i][c] / (r.rows.albedo[i][c] as f64).max(1e-6) / (1u32 << ob) as f64 * 255.0);
+        let m = b.iter().copied().fold(255.0, f64::max);
+        let o = ((y * t.width + x) * 4) as usize;
+        for c in 0..3 {
+            t.rgba8[o + c] = (b[c] * 255.0 / m).floor() as u8;
         }
     }
     // Write the lightmaps back to the converted scene's files.
@@ -342,6 +329,10 @@ fn synthetic_scene(dir: &Path, bounces: bool, sun: bool) -> (PathBuf, f64) {
     assert!(written > 0);
     (gltf, diag)
 }
+
+/// Passes of bounced light in the synthetic data: relight's own default when the compile
+/// is not recorded, so a bounce scale of 1 reproduces it.
+const SYNTHETIC_BOUNCES: usize = q3gltf_relight::pipeline::DEFAULT_BOUNCES;
 
 /// Direction towards the sun (normalised on use) and its irradiance, W/m^2.
 const SYNTHETIC_SUN: ([f32; 3], [f32; 3]) = ([0.5, 0.8, 0.3], [6.0, 5.5, 4.5]);
@@ -367,28 +358,30 @@ fn synthetic_ground_truth_is_recovered() {
     assert_recovered(&found, &synthetic_truth_cd(), [0.0; 3], 0.01 * diag, 0.02);
     let err = r["rel_error_final"].as_f64().unwrap();
     assert!(err < 0.01, "relative error {err}");
-    assert!(r["indirect"].is_null(), "no bounce in the data, yet the indirect term was kept: {}", r["indirect_note"]);
+    assert!(r["bounce"].is_null(), "no bounce in the data, yet the bounce term was kept: {}", r["terms"]);
+    assert!(r["ambient"].is_null() && r["sun"].is_null(), "terms the data has not: {}", r["terms"]);
 }
 
-/// Synthetic ground truth with bounced light in the data: the indirect term is kept with a
+/// Synthetic ground truth with bounced light in the data: the bounce term is kept with a
 /// scale near 1, and the lights come back as the direct light alone (1% / 2%). Without
-/// the term (`--indirect off`) the lights must absorb the bounced light and the fit is
+/// the term (`--bounce off`) the lights must absorb the bounced light and the fit is
 /// measurably worse: that is what the term is for.
 #[test]
 fn synthetic_ground_truth_with_bounces_is_recovered() {
     let dir = tmp("synthetic-bounce");
     let (gltf, diag) = synthetic_scene(&dir, true, false);
-    let run_with = |indirect: &str| -> Value {
-        let rep = dir.join(format!("r-{indirect}.json"));
-        let out = dir.join(format!("relit-{indirect}.glb"));
-        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--indirect", indirect, "--report", rep.to_str().unwrap(), "-q"]);
+    let run_with = |bounce: &str| -> Value {
+        let rep = dir.join(format!("r-{bounce}.json"));
+        let out = dir.join(format!("relit-{bounce}.glb"));
+        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--bounce", bounce, "--report", rep.to_str().unwrap(), "-q"]);
         report(&rep)
     };
     let r = run_with("auto");
-    let k: Vec<f64> = r["indirect"].as_array().unwrap_or_else(|| panic!("indirect term not kept: {}", r["indirect_note"])).iter().map(|v| v.as_f64().unwrap()).collect();
+    let k: Vec<f64> = r["bounce"].as_array().unwrap_or_else(|| panic!("bounce term not kept: {}", r["terms"])).iter().map(|v| v.as_f64().unwrap()).collect();
     for c in &k {
-        assert!((c - 1.0).abs() < 0.1, "indirect scale {k:?}, expected about 1");
+        assert!((c - 1.0).abs() < 0.1, "bounce scale {k:?}, expected about 1");
     }
+    assert_eq!(r["bounces"], SYNTHETIC_BOUNCES);
     let found = lights_of(&r);
     assert_eq!(found.len(), SYNTHETIC_TRUTH.len(), "{found:?}");
     assert_recovered(&found, &synthetic_truth_cd(), [0.0; 3], 0.01 * diag, 0.02);
@@ -497,7 +490,7 @@ fn synthetic_ground_truth_with_a_sun_is_recovered() {
     run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
     let r = report(&rep);
     let sun = &r["sun"];
-    assert!(sun.is_object(), "no sun: {}", r["sun_note"]);
+    assert!(sun.is_object(), "no sun: {}", r["terms"]);
     let w: Vec<f64> = sun["to_sun"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     let t = glam::DVec3::from(SYNTHETIC_SUN.0.map(f64::from)).normalize();
     let angle = glam::DVec3::new(w[0], w[1], w[2]).angle_between(t).to_degrees();

@@ -27,6 +27,31 @@ pub fn baseoa() -> &'static Path {
     })
 }
 
+/// The folder of the OpenArena community map pack vol. 1 (`z_oacmp-volume1-v3.pk3`, with
+/// the maps' `.map` sources), fetched on first use; a second game dir after baseoa.
+pub fn oacmp() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let out = std::process::Command::new("bash")
+            .arg(repo().join("samples/fetch-openarena.sh"))
+            .arg("--oacmp")
+            .output()
+            .expect("run samples/fetch-openarena.sh --oacmp");
+        assert!(out.status.success(), "fetching the OACMP pack failed: {}", String::from_utf8_lossy(&out.stderr));
+        let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim().to_string());
+        assert!(dir.join("z_oacmp-volume1-v3.pk3").is_file(), "no z_oacmp-volume1-v3.pk3 in {}", dir.display());
+        dir
+    })
+}
+
+/// One file of a pk3 (a zip), written to `out`.
+pub fn extract(pk3: &Path, name: &str, out: &Path) {
+    let mut vfs = Vfs::new();
+    vfs.mount_pk3(pk3).unwrap();
+    let bytes = vfs.read(name).unwrap_or_else(|e| panic!("{}:{name}: {e}", pk3.display()));
+    std::fs::write(out, bytes).unwrap();
+}
+
 /// Names (`maps/x.bsp`) of the maps inside one pk3 of baseoa.
 pub fn maps_in(pk3: &str) -> Vec<String> {
     let mut vfs = Vfs::new();
