@@ -204,3 +204,56 @@ pub fn lbfgs(x0: &[f64], mask: &[bool], step0: f64, max_iter: usize, rel_tol: f6
     }
     Outcome { x, f: fx, iterations: it, evaluations: evals, stop }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn never_stop() -> impl FnMut(usize, f64) -> bool {
+        |_, _| true
+    }
+
+    #[test]
+    fn lbfgs_minimises_rosenbrock() {
+        let mut f = |x: &[f64], _: bool| {
+            let (a, b) = (x[0], x[1]);
+            ((1.0 - a).powi(2) + 100.0 * (b - a * a).powi(2), vec![-2.0 * (1.0 - a) - 400.0 * a * (b - a * a), 200.0 * (b - a * a)])
+        };
+        let o = lbfgs(&[-1.2, 1.0], &[true, true], 0.1, 500, 1e-12, &mut f, &mut never_stop());
+        assert!((o.x[0] - 1.0).abs() < 1e-3 && (o.x[1] - 1.0).abs() < 1e-3, "{:?}", o);
+    }
+
+    /// A flat objective (zero gradient): both stop at once where they started, finite.
+    #[test]
+    fn flat_objective_stays_put() {
+        let mut f = |_: &[f64], _: bool| (3.0, vec![0.0, 0.0]);
+        let o = lbfgs(&[0.5, -2.0], &[true, true], 1.0, 100, 1e-6, &mut f, &mut never_stop());
+        assert_eq!(o.x, vec![0.5, -2.0]);
+        assert_eq!(o.stop, Stop::Converged);
+        let o = adam(&[0.5, -2.0], &[true, true], 0.1, 100, 1e-6, &mut f, &mut never_stop());
+        assert_eq!(o.x, vec![0.5, -2.0], "Adam with zero gradients moves nothing");
+        assert!(o.f == 3.0);
+    }
+
+    /// An objective that no step lowers (a kink at the start, as at a shadow edge): L-BFGS's
+    /// line search fails, and it stops at the start with its value, not somewhere worse.
+    #[test]
+    fn failed_line_search_keeps_the_start() {
+        let mut f = |x: &[f64], _: bool| (x[0].abs() * 10.0 + 1.0, vec![1.0]);
+        let o = lbfgs(&[0.0], &[true], 1.0, 50, 1e-6, &mut f, &mut never_stop());
+        assert_eq!(o.x, vec![0.0]);
+        assert_eq!(o.f, 1.0);
+        assert!(matches!(o.stop, Stop::LineSearchFailed | Stop::Converged), "{:?}", o.stop);
+    }
+
+    /// Non-finite gradient entries (a light on a surface) are treated as zero: the other
+    /// parameters still move and nothing becomes NaN.
+    #[test]
+    fn non_finite_gradients_are_ignored() {
+        let mut f = |x: &[f64], _: bool| ((x[0] - 2.0).powi(2), vec![2.0 * (x[0] - 2.0), f64::NAN]);
+        let o = lbfgs(&[0.0, 1.0], &[true, true], 0.5, 100, 1e-12, &mut f, &mut never_stop());
+        assert!((o.x[0] - 2.0).abs() < 1e-6 && o.x[1] == 1.0, "{:?}", o.x);
+        let o = adam(&[0.0, 1.0], &[true, true], 0.1, 2000, 1e-12, &mut f, &mut never_stop());
+        assert!((o.x[0] - 2.0).abs() < 1e-2 && o.x[1] == 1.0, "{:?}", o.x);
+    }
+}

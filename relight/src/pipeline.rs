@@ -90,8 +90,9 @@ pub const DEFAULT_BOUNCES: usize = 8;
 /// oa_dm1: 40 bought 0.001 of error over 20 for 8 s more).
 const POLISH_ITERATIONS: usize = 20;
 
-/// Rounds of sun search and polish at the end of a fit with a sun.
-const SUN_ROUNDS: usize = 2;
+/// Rounds of sun search and polish at the end of a fit with a sun, at most (they stop
+/// when the search no longer turns the sun).
+const SUN_ROUNDS: usize = 4;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BackendChoice {
@@ -671,17 +672,29 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         sources = fit.model.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
     }
     // The sun's direction by search, now that the rest explains its part, and the rest
-    // polished for it; twice, as the lights had bent to the first direction.
+    // polished for it; again while the search turns it (the lights had bent to the
+    // previous direction).
     let polish = crate::fit::Phase { algorithm: crate::fit::Algorithm::Lbfgs { step: 0.5 }, params: crate::fit::ParamSet::ALL, max_iterations: opts.max_iterations.unwrap_or(POLISH_ITERATIONS).min(POLISH_ITERATIONS) };
     let sun_rounds = if fit.model.sun.is_some() && opts.fit == FitMode::All { SUN_ROUNDS } else { 0 };
-    for _ in 0..sun_rounds {
+    for round in 0..sun_rounds {
         if let Some(s) = fit.model.sun.filter(|_| !fit.out_of_time()) {
             refine_sun(&mut fit, s, opts.seed);
+            let turned = fit.model.sun.is_some_and(|n| n.to_sun != s.to_sun);
+            if round > 0 && !turned {
+                break;
+            }
             fit.run_phase("polish", polish);
         }
     }
     if sun_rounds == 0 && (pruned + merged > 0 || !term_reports.is_empty()) && !fit.out_of_time() {
         fit.run_phase("polish", polish);
+    }
+    // The final state exactly: the fit re-traces a light only once it has moved more than
+    // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
+    // every light where it is and refit the linear coefficients for it.
+    if !fit.out_of_time() {
+        fit.retrace_tol = 0.0;
+        fit.fit_linear();
     }
     let final_eval = fit.eval();
     if let Some(e) = fit.failure.take() {

@@ -4,12 +4,20 @@
 use super::Fitter;
 use crate::model::Light;
 
+/// How much pruning may raise the relative error in all, relative to the error before it.
+pub const PRUNE_BUDGET: f64 = 0.01;
+
 impl Fitter<'_> {
     /// Removes lights whose removal raises the relative error by less than `tol`
     /// (absolute), one at a time (the weakest first), refitting the linear coefficients
-    /// after each. Returns how many.
+    /// after each, while the error stays within `tol` plus [`PRUNE_BUDGET`] of where it
+    /// was before any removal (without that bound the small steps add up: on oacmpdm4, 29
+    /// of 32 lights went, each under 0.002, and the error rose from 0.28 to 0.32).
+    /// Returns how many.
     pub fn prune(&mut self, tol: f64) -> usize {
         let mut removed = 0;
+        let start = self.fit_linear();
+        let ceiling = start * (1.0 + PRUNE_BUDGET) + tol;
         loop {
             if self.out_of_time() || self.model.lights.len() <= 1 {
                 return removed;
@@ -22,7 +30,7 @@ impl Fitter<'_> {
             for &j in order.iter().take(4) {
                 self.remove_light(j);
                 let e = self.fit_linear();
-                if e <= base + tol {
+                if e <= base + tol && e <= ceiling {
                     removed += 1;
                     done = true;
                     break;

@@ -18,8 +18,10 @@
 //! f = 1/2 A [ w (x - clamp(x, lo, hi))^2 + (1 - w) min(0, x - lower)^2 ]
 //! ```
 //!
-//! and the relative error `sqrt(sum A w (x - clamp(x, lo, hi))^2 / sum A w mid^2)` with
-//! `mid = (lo + hi) / 2`: zero for a model that every byte agrees with.
+//! and the relative error `sqrt(sum 2 f / sum A [w mid^2 + (1 - w) lower^2])` with
+//! `mid = (lo + hi) / 2`: zero for a model that every byte agrees with, and 1 for no light
+//! at all, censored texels included (a fully saturated lightmap is not a perfect fit of
+//! darkness).
 //!
 //! [`Sampling`] holds how the data was sampled (q3map2's rules for its lightmaps).
 
@@ -143,7 +145,16 @@ impl Rows {
 
     /// Completes rows pushed one by one (computes the error's denominator).
     pub fn finish(&mut self) {
-        self.norm2 = (0..self.len()).map(|i| (0..3).map(|c| self.area[i] as f64 * self.weight[i][c] as f64 * self.mid(i, c).powi(2)).sum::<f64>()).sum();
+        self.norm2 = (0..self.len())
+            .map(|i| {
+                (0..3)
+                    .map(|c| {
+                        let w = self.weight[i][c] as f64;
+                        self.area[i] as f64 * (w * self.mid(i, c).powi(2) + (1.0 - w) * (self.lower[i][c] as f64).powi(2))
+                    })
+                    .sum::<f64>()
+            })
+            .sum();
     }
 
     /// The middle of row `i`'s interval in channel `c`.
@@ -192,15 +203,15 @@ impl Rows {
     }
 }
 
-/// One row-channel's objective term: `(f, dF/dx, A w (x - clamp(x, lo, hi))^2)` (see the
-/// module docs).
+/// One row-channel's objective term: `(f, dF/dx, 2 f)`, the last the relative error's
+/// numerator (see the module docs).
 #[inline]
 pub fn residual(x: f64, lo: f64, hi: f64, w: f64, lower: f64, area: f64) -> (f64, f64, f64) {
     let two = x - x.clamp(lo, hi.max(lo));
     let one = (x - lower).min(0.0);
     let f = 0.5 * area * (w * two * two + (1.0 - w) * one * one);
     let rho = area * (w * two + (1.0 - w) * one);
-    (f, rho, area * w * two * two)
+    (f, rho, 2.0 * f)
 }
 
 #[cfg(test)]
@@ -216,7 +227,7 @@ mod tests {
         assert_eq!((f, rho), (0.25, -1.0));
         // A censored channel (w = 0): only below the bound costs.
         assert_eq!(residual(5.0, 0.0, 0.0, 0.0, 4.0, 1.0).0, 0.0);
-        assert_eq!(residual(3.0, 0.0, 0.0, 0.0, 4.0, 1.0), (0.5, -1.0, 0.0));
+        assert_eq!(residual(3.0, 0.0, 0.0, 0.0, 4.0, 1.0), (0.5, -1.0, 1.0));
     }
 
     #[test]
