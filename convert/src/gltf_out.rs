@@ -220,6 +220,9 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
                 moz_used = true;
             }
         }
+        // The baked look is Lambertian: no specular lobe (Blender's Principled BSDF would
+        // add its default 0.5 and wash grazing walls grey-white).
+        mat.extensions.get_or_insert_with(Default::default).others.insert("KHR_materials_specular".into(), serde_json::json!({ "specularFactor": 0.0 }));
         if let Some((color, radiance)) = m.emissive {
             // glTF's emissiveFactor is in [0, 1]; the strength extension carries the rest.
             let strength = radiance.max(0.0);
@@ -315,6 +318,9 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
     }
     if emissive_strength_used {
         b.root.extensions_used.push("KHR_materials_emissive_strength".into());
+    }
+    if !scene.materials.is_empty() {
+        b.root.extensions_used.push("KHR_materials_specular".into());
     }
 
     // Nodes and the scene.

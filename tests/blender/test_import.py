@@ -65,6 +65,9 @@ def test_import_converted_map(bpy, dm1):
         mat = bpy.data.materials[m["name"]]
         nodes = mat.node_tree.nodes
         bsdf = next(n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        # Lambertian as the model assumes: KHR_materials_specular 0 reaches the BSDF.
+        assert m["extensions"]["KHR_materials_specular"]["specularFactor"] == 0.0
+        assert bsdf.inputs["Specular IOR Level"].default_value == 0.0, (m["name"], bsdf.inputs["Specular IOR Level"].default_value)
         base_tex = m.get("pbrMetallicRoughness", {}).get("baseColorTexture")
         if base_tex is not None:
             gl_image = images[textures[base_tex["index"]]["source"]]
