@@ -100,6 +100,11 @@ fn rewrite_lightmaps(gltf: &Path, f: &dyn Fn(u32, u32, &mut image::Rgba<u8>)) {
     }
 }
 
+/// Sets a texel's colour to grey `v` (alpha kept).
+fn grey(p: &mut image::Rgba<u8>, v: u8) {
+    p.0[..3].fill(v);
+}
+
 /// The converted sample with these point lights (world m, cd) in place of its own.
 fn with_lights(gltf: &Path, name: &str, lights: &[([f64; 3], f64)]) -> PathBuf {
     let mut json = read_json(gltf);
@@ -144,11 +149,7 @@ fn first_light_and_surface(gltf: &Path) -> ([f64; 3], [f64; 3]) {
 fn all_black_lightmap() {
     let dir = tmp("black");
     let gltf = convert_sample(&dir);
-    rewrite_lightmaps(&gltf, &|_, _, p| {
-        p.0[0] = 0;
-        p.0[1] = 0;
-        p.0[2] = 0;
-    });
+    rewrite_lightmaps(&gltf, &|_, _, p| grey(p, 0));
     for backend in ["cpu", "wgpu"] {
         let r = relight(&gltf, backend, &["--scheme", "fast"]);
         let total: f64 = r["lights"].as_array().unwrap().iter().map(|l| l["intensity_cd"].as_f64().unwrap()).sum();
@@ -167,11 +168,7 @@ fn all_black_lightmap() {
 fn saturated_lightmap() {
     let dir = tmp("saturated");
     let gltf = convert_sample(&dir);
-    rewrite_lightmaps(&gltf, &|_, _, p| {
-        p.0[0] = 255;
-        p.0[1] = 255;
-        p.0[2] = 255;
-    });
+    rewrite_lightmaps(&gltf, &|_, _, p| grey(p, 255));
     for backend in ["cpu", "wgpu"] {
         let r = relight(&gltf, backend, &["--scheme", "fast"]);
         assert!(r["rel_error_final"].as_f64().unwrap() < 0.01, "{backend}: {}", r["rel_error_final"]);
@@ -184,12 +181,7 @@ fn saturated_lightmap() {
 fn all_censored_but_one_texel() {
     let dir = tmp("one-texel");
     let gltf = convert_sample(&dir);
-    rewrite_lightmaps(&gltf, &|x, y, p| {
-        let v = if (x, y) == (20, 20) { 80 } else { 255 };
-        p.0[0] = v;
-        p.0[1] = v;
-        p.0[2] = v;
-    });
+    rewrite_lightmaps(&gltf, &|x, y, p| grey(p, if (x, y) == (20, 20) { 80 } else { 255 }));
     for backend in ["cpu", "wgpu"] {
         let r = relight(&gltf, backend, &["--scheme", "fast"]);
         let (e0, e1) = (r["rel_error_initial"].as_f64().unwrap(), r["rel_error_final"].as_f64().unwrap());

@@ -12,36 +12,31 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// Runs `samples/fetch-openarena.sh` with `args` (it caches what it fetches) and returns
+/// the folder it prints, checked to hold `expect`.
+fn fetched(args: &[&str], expect: &str) -> PathBuf {
+    let out = std::process::Command::new("bash")
+        .arg(repo().join("samples/fetch-openarena.sh"))
+        .args(args)
+        .output()
+        .expect("run samples/fetch-openarena.sh");
+    assert!(out.status.success(), "fetching OpenArena data ({args:?}) failed: {}", String::from_utf8_lossy(&out.stderr));
+    let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim().to_string());
+    assert!(dir.join(expect).is_file(), "no {expect} in {}", dir.display());
+    dir
+}
+
 /// The `baseoa` game directory, fetched on first use (the script caches it).
 pub fn baseoa() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let out = std::process::Command::new("bash")
-            .arg(repo().join("samples/fetch-openarena.sh"))
-            .output()
-            .expect("run samples/fetch-openarena.sh");
-        assert!(out.status.success(), "fetching OpenArena data failed: {}", String::from_utf8_lossy(&out.stderr));
-        let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim().to_string());
-        assert!(dir.join("pak1-maps.pk3").is_file(), "no pak1-maps.pk3 in {}", dir.display());
-        dir
-    })
+    DIR.get_or_init(|| fetched(&[], "pak1-maps.pk3"))
 }
 
 /// The folder of the OpenArena community map pack vol. 1 (`z_oacmp-volume1-v3.pk3`, with
 /// the maps' `.map` sources), fetched on first use; a second game dir after baseoa.
 pub fn oacmp() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let out = std::process::Command::new("bash")
-            .arg(repo().join("samples/fetch-openarena.sh"))
-            .arg("--oacmp")
-            .output()
-            .expect("run samples/fetch-openarena.sh --oacmp");
-        assert!(out.status.success(), "fetching the OACMP pack failed: {}", String::from_utf8_lossy(&out.stderr));
-        let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim().to_string());
-        assert!(dir.join("z_oacmp-volume1-v3.pk3").is_file(), "no z_oacmp-volume1-v3.pk3 in {}", dir.display());
-        dir
-    })
+    DIR.get_or_init(|| fetched(&["--oacmp"], "z_oacmp-volume1-v3.pk3"))
 }
 
 /// One file of a pk3 (a zip), written to `out`.
