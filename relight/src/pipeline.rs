@@ -513,7 +513,7 @@ pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) 
     let mut cpu = Cpu { rows: &rows, bvh: &bvh };
     let mut vis = crate::trace::visibility::Visibility::default();
     vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &bases.sky_triangles));
-    vis.update(&model.lights, 0.0, &rows.sampling, rows.len(), &mut |p| cpu.trace(p))?;
+    vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| cpu.trace(p))?;
     let radiance = model::radiance(model, &rows, &bases, &vis, &mut cpu)?;
     Ok(Rendered { rows, radiance })
 }
@@ -928,7 +928,7 @@ fn refine_sun(fit: &mut Fitter, s: Sun, seed: u64) {
     let others = Model { sun: None, bounce: None, filter: false, ..fit.model.clone() };
     let mut vis = crate::trace::visibility::Visibility::default();
     let bvh = fit.bvh;
-    if vis.update(&others.lights, 0.0, &sub.sampling, sub.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(bvh, &sub, q, r)).collect())).is_err() {
+    if vis.update(&model::lights::sources(&others.lights), 0.0, &sub.sampling, sub.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(bvh, &sub, q, r)).collect())).is_err() {
         return;
     }
     let Ok(base) = model::radiance(&others, &sub, &sub_bases, &vis, &mut Cpu { rows: &sub, bvh }) else { return };

@@ -164,7 +164,7 @@ impl<'a> Fitter<'a> {
         let (bvh, rows, sky) = (self.bvh, self.rows, &self.bases.sky_triangles);
         self.vis.update_sun(m.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| visibility::trace_sun(bvh, rows, d, sky));
         let backend = &mut *self.backend;
-        self.vis.update(&m.lights, self.retrace_tol, &self.rows.sampling, n, &mut |p| backend.trace(p)).map(|_| ())
+        self.vis.update(&crate::model::lights::sources(&m.lights), self.retrace_tol, &self.rows.sampling, n, &mut |p| backend.trace(p)).map(|_| ())
     }
 
     /// Re-traces what moved, without evaluating the objective.

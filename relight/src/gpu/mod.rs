@@ -605,7 +605,7 @@ mod tests {
         let blocked = c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>();
         assert!(blocked > 0, "the pillar casts a shadow");
         let mut vis = Visibility::default();
-        vis.update(&lights, 0.0, &rows.sampling, rows.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
+        vis.update(&crate::model::lights::sources(&lights), 0.0, &rows.sampling, rows.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };
         let (ce, ge) = (cpu.irradiance(&vis, &lights).unwrap(), gpu.irradiance(&vis, &lights).unwrap());
         let scale = ce.iter().flat_map(|e| e.iter()).copied().fold(0.0f32, f32::max);

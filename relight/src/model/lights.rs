@@ -62,6 +62,15 @@ impl Light {
     pub fn max_rgb(&self) -> f32 {
         self.rgb[0].max(self.rgb[1]).max(self.rgb[2])
     }
+    /// What the visibility cache needs of a light: position and brightest channel.
+    pub fn source(&self) -> (Vec3, f32) {
+        (self.pos, self.max_rgb())
+    }
+}
+
+/// [`Light::source`] of each light.
+pub fn sources(lights: &[Light]) -> Vec<(Vec3, f32)> {
+    lights.iter().map(Light::source).collect()
 }
 
 /// `g` of one light at one row and its derivatives.

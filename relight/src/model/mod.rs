@@ -427,7 +427,7 @@ mod tests {
             filter: true,
         };
         let mut vis = Visibility::default();
-        vis.update(&model.lights, 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
+        vis.update(&lights::sources(&model.lights), 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let sky_tri = vec![true; mesh.triangles.len()];
         vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
         let mut cpu = Cpu { rows: &rows, bvh: &bvh };

@@ -9,7 +9,6 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::model::Light;
 use crate::rows::{Rows, Sampling};
 use crate::trace::bvh::Bvh;
 
@@ -54,33 +53,34 @@ impl Visibility {
         }
     }
 
-    /// Brings the cache up to date with `lights`: traces (with `trace`, a batch of light
+    /// Brings the cache up to date with `lights` (position, brightest channel in W/sr:
+    /// [`crate::model::Light::source`]): traces (with `trace`, a batch of light
     /// positions and reaches to bit vectors) new lights, lights that moved more than
     /// `tolerance` meters and lights whose reach ([`reach`] under `sampling`) outgrew the
     /// one they were traced to; drops lights beyond `lights.len()`. Returns how many lights
     /// were traced.
-    pub fn update(&mut self, lights: &[Light], tolerance: f32, sampling: &Sampling, n_vertices: usize, trace: &mut dyn FnMut(&[(Vec3, f32)]) -> crate::error::Result<Vec<Vec<u32>>>) -> crate::error::Result<usize> {
+    pub fn update(&mut self, lights: &[(Vec3, f32)], tolerance: f32, sampling: &Sampling, n_vertices: usize, trace: &mut dyn FnMut(&[(Vec3, f32)]) -> crate::error::Result<Vec<Vec<u32>>>) -> crate::error::Result<usize> {
         self.bits.truncate(lights.len());
         self.traced_at.truncate(lights.len());
         self.traced_reach.truncate(lights.len());
         let stale: Vec<usize> = (0..lights.len())
-            .filter(|&j| j >= self.bits.len() || (self.traced_at[j] - lights[j].pos).length() > tolerance || reach(&lights[j], sampling, 1.0) > self.traced_reach[j])
+            .filter(|&j| j >= self.bits.len() || (self.traced_at[j] - lights[j].0).length() > tolerance || reach(lights[j].1, sampling, 1.0) > self.traced_reach[j])
             .collect();
         if stale.is_empty() {
             return Ok(0);
         }
         // Traced with room to grow, so that a light brightening a little is not re-traced.
-        let batch: Vec<(Vec3, f32)> = stale.iter().map(|&j| (lights[j].pos, reach(&lights[j], sampling, REACH_MARGIN))).collect();
+        let batch: Vec<(Vec3, f32)> = stale.iter().map(|&j| (lights[j].0, reach(lights[j].1, sampling, REACH_MARGIN))).collect();
         let traced = trace(&batch)?;
         self.rays += (n_vertices * stale.len()) as u64;
         for ((&j, words), &(_, r)) in stale.iter().zip(traced).zip(&batch) {
             if j < self.bits.len() {
                 self.bits[j] = words;
-                self.traced_at[j] = lights[j].pos;
+                self.traced_at[j] = lights[j].0;
                 self.traced_reach[j] = r;
             } else {
                 self.bits.push(words);
-                self.traced_at.push(lights[j].pos);
+                self.traced_at.push(lights[j].0);
                 self.traced_reach.push(r);
             }
         }
@@ -134,9 +134,9 @@ pub fn trace_sun(bvh: &Bvh, pb: &Rows, to_sun: Vec3, sky: &[bool]) -> Vec<u32> {
 /// How far a light can add anything under `sampling`: beyond `sqrt(I_max / falloff)` its
 /// irradiance (at most `I / d^2`) is below the falloff tolerance; times `margin`.
 /// Unlimited without a falloff.
-pub fn reach(l: &Light, sampling: &Sampling, margin: f32) -> f32 {
+pub fn reach(max_rgb: f32, sampling: &Sampling, margin: f32) -> f32 {
     if sampling.falloff > 0.0 {
-        (l.max_rgb().max(0.0) / sampling.falloff).sqrt() * margin
+        (max_rgb.max(0.0) / sampling.falloff).sqrt() * margin
     } else {
         f32::INFINITY
     }
