@@ -61,9 +61,15 @@ impl Fitter<'_> {
     }
 
     /// Merges pairs of free point lights closer than `dist` m when that raises the
-    /// relative error by less than `tol`. Returns how many merges were made.
+    /// relative error by less than `tol`, within the same budget as [`Fitter::prune`]; a
+    /// pair that failed is not tried again. Returns how many merges were made.
     pub fn merge(&mut self, dist: f32, tol: f64) -> usize {
         let mut merged = 0;
+        // Pairs that failed stay failed while neither light changes: keyed by positions, so
+        // a success (which renumbers the lights) does not make the scan try them again.
+        let key = |l: &Light| l.pos.to_array().map(f32::to_bits);
+        let mut failed: std::collections::HashSet<([u32; 3], [u32; 3])> = std::collections::HashSet::new();
+        let ceiling = self.fit_linear() * (1.0 + PRUNE_BUDGET) + tol;
         'outer: loop {
             if self.out_of_time() {
                 return merged;
@@ -73,7 +79,7 @@ impl Fitter<'_> {
             for a in 0..k {
                 for b in a + 1..k {
                     let (la, lb) = (self.model.lights[a], self.model.lights[b]);
-                    if self.locked[a] || self.locked[b] || la.spot.is_some() || lb.spot.is_some() || (la.pos - lb.pos).length() > dist {
+                    if self.locked[a] || self.locked[b] || la.spot.is_some() || lb.spot.is_some() || (la.pos - lb.pos).length() > dist || failed.contains(&(key(&la), key(&lb))) {
                         continue;
                     }
                     let saved = (self.model.clone(), self.locked.clone(), self.vis.clone());
@@ -82,11 +88,12 @@ impl Fitter<'_> {
                     self.model.lights[a] = Light::point(pos, [0, 1, 2].map(|c| la.rgb[c] + lb.rgb[c]));
                     self.remove_light(b);
                     let e = self.fit_linear();
-                    if e <= base + tol {
+                    if e <= base + tol && e <= ceiling {
                         merged += 1;
                         continue 'outer;
                     }
                     (self.model, self.locked, self.vis) = saved;
+                    failed.insert((key(&la), key(&lb)));
                 }
             }
             return merged;
