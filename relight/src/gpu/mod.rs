@@ -163,18 +163,7 @@ impl Context {
             let params = TargetParams { triangles: n, row: gx * WG, pad: [0; 2] };
             let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("target params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
             let layout = self.pipes.target.get_bind_group_layout(0);
-            let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("target"),
-                layout: &layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: tris_b.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: mats_b.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: infos_b.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: texels_b.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: out.as_entire_binding() },
-                ],
-            });
+            let bg = bind_group(d, &layout, "target", &[&ub, &tris_b, &mats_b, &infos_b, &texels_b, &out]);
             let mut enc = d.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
@@ -331,6 +320,12 @@ pub struct GpuBackend {
     uploaded: Vec<Option<Vec3>>,
 }
 
+/// A bind group of whole buffers, bound in order: binding `i` is `buffers[i]`.
+fn bind_group(device: &wgpu::Device, layout: &wgpu::BindGroupLayout, label: &str, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
+}
+
 fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
     // wgpu refuses zero-sized bindings: pad empty arrays to one element.
     let pad = [0u8; 16];
@@ -384,18 +379,7 @@ impl GpuBackend {
             let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.sampling.ray_offset, inhibit: self.sampling.inhibit, pad: [0.0; 3] };
             let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("trace params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
             let layout = self.ctx.pipes.trace.get_bind_group_layout(0);
-            let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("trace"),
-                layout: &layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: self.nodes.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: self.tris.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: lb.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: bits.as_entire_binding() },
-                ],
-            });
+            let bg = bind_group(d, &layout, "trace", &[&ub, &self.rows, &self.nodes, &self.tris, &lb, &bits]);
             let mut enc = d.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
@@ -462,17 +446,7 @@ impl GpuBackend {
         let out = output(d, "irradiance", size);
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("light params"), contents: bytemuck::bytes_of(&self.params(k)), usage: wgpu::BufferUsages::UNIFORM });
         let layout = self.ctx.pipes.irradiance.get_bind_group_layout(0);
-        let bg = d.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("light irradiance"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_ref().expect("uploaded").as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: out.as_entire_binding() },
-            ],
-        });
+        let bg = bind_group(d, &layout, "light irradiance", &[&ub, &self.rows, &lbuf, self.vis.as_ref().expect("uploaded"), &out]);
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -504,32 +478,17 @@ impl GpuBackend {
         let partial = output(d, "partial", psize);
         let blocks = output(d, "blocks", bsize);
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("light params"), contents: bytemuck::bytes_of(&self.params(k)), usage: wgpu::BufferUsages::UNIFORM });
-        let entries = |layout: &wgpu::BindGroupLayout, label: &str| {
-            d.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some(label),
-                layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: ub.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: self.rows.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: lbuf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: self.vis.as_ref().expect("uploaded").as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: rbuf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: partial.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 6, resource: blocks.as_entire_binding() },
-                ],
-            })
-        };
-        let bg1 = entries(&self.ctx.pipes.gradient.get_bind_group_layout(0), "light gradient");
-        let bg2 = entries(&self.ctx.pipes.reduce.get_bind_group_layout(0), "light gradient blocks");
+        // Both entry points share one layout (`Pipelines::new`), so one bind group.
+        let bg = bind_group(d, &self.ctx.pipes.gradient.get_bind_group_layout(0), "light gradient", &[&ub, &self.rows, &lbuf, self.vis.as_ref().expect("uploaded"), &rbuf, &partial, &blocks]);
         let mut enc = d.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_pipeline(&self.ctx.pipes.gradient);
-            pass.set_bind_group(0, &bg1, &[]);
+            pass.set_bind_group(0, &bg, &[]);
             let (gx, gy) = grid(groups);
             pass.dispatch_workgroups(gx, gy, 1);
             pass.set_pipeline(&self.ctx.pipes.reduce);
-            pass.set_bind_group(0, &bg2, &[]);
+            pass.set_bind_group(0, &bg, &[]);
             let (gx, gy) = grid((nblocks * per).div_ceil(WG as u64) as u32);
             pass.dispatch_workgroups(gx, gy, 1);
         }
