@@ -995,7 +995,7 @@ fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, 
     let only_lights = model::radiance(&Model { lights: m.lights.clone(), ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_sky = model::radiance(&Model { sun: m.sun, sky: m.sky, ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_surfaces = model::radiance(&Model { surfaces: m.surfaces.clone(), ..bare }, rows, bases, &fit.vis, &mut *fit.backend)?;
-    let mut s = String::from("material,tex,tx,ty,px,py,pz,nx,ny,nz,ar,ag,ab,lo_r,lo_g,lo_b,hi_r,hi_g,hi_b,x_r,x_g,x_b,area,g_lights,g_sky,g_surfaces\n");
+    let mut s = String::from("material,tex,tx,ty,px,py,pz,nx,ny,nz,ar,ag,ab,lo_r,lo_g,lo_b,hi_r,hi_g,hi_b,x_r,x_g,x_b,area,g_lights,g_sky,g_surfaces,dirt\n");
     for i in 0..rows.len() {
         let p = scene.origin + rows.pos[i].as_dvec3();
         let n = rows.normal[i];
@@ -1006,8 +1006,9 @@ fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, 
         let a = rows.albedo[i];
         let _ = writeln!(
             s,
-            "{name},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            t[0], t[1], t[2], p.x, p.y, p.z, n.x, n.y, n.z, a[0], a[1], a[2], lo[0], lo[1], lo[2], hs[0], hs[1], hs[2], x[i][0], x[i][1], x[i][2], rows.area[i], only_lights[i][1], only_sky[i][1], only_surfaces[i][1]
+            "{name},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            t[0], t[1], t[2], p.x, p.y, p.z, n.x, n.y, n.z, a[0], a[1], a[2], lo[0], lo[1], lo[2], hs[0], hs[1], hs[2], x[i][0], x[i][1], x[i][2], rows.area[i], only_lights[i][1], only_sky[i][1], only_surfaces[i][1],
+            bases.dirt.as_ref().map_or(1.0, |d| d[i])
         );
     }
     q3gltf_convert::output::write_atomic(path, s.as_bytes()).map_err(|e| Error::Io { path: path.display().to_string(), source: e })
