@@ -108,24 +108,12 @@ fn grey(p: &mut image::Rgba<u8>, v: u8) {
 /// The converted sample with these point lights (world m, cd) in place of its own.
 fn with_lights(gltf: &Path, name: &str, lights: &[([f64; 3], f64)]) -> PathBuf {
     let mut json = read_json(gltf);
-    let mut nodes: Vec<Value> = json["nodes"].as_array().unwrap().clone();
-    for n in nodes.iter_mut() {
-        n.as_object_mut().unwrap().remove("extensions");
-    }
-    let mut roots: Vec<Value> = json["scenes"][0]["nodes"].as_array().unwrap().clone();
-    let mut defs = Vec::new();
-    for (k, (p, cd)) in lights.iter().enumerate() {
-        defs.push(serde_json::json!({ "type": "point", "color": [1.0, 0.9, 0.8], "intensity": cd }));
-        nodes.push(serde_json::json!({ "name": format!("hard_{k}"), "translation": p, "extensions": { "KHR_lights_punctual": { "light": k } } }));
-        roots.push((nodes.len() - 1).into());
-    }
-    json["nodes"] = Value::Array(nodes);
-    json["scenes"][0]["nodes"] = Value::Array(roots);
-    json["extensions"]["KHR_lights_punctual"] = serde_json::json!({ "lights": defs });
-    let used = json["extensionsUsed"].as_array().cloned().unwrap_or_default();
-    if !used.iter().any(|u| u == "KHR_lights_punctual") {
-        json["extensionsUsed"] = Value::Array(used.into_iter().chain([Value::from("KHR_lights_punctual")]).collect());
-    }
+    let defs = lights
+        .iter()
+        .enumerate()
+        .map(|(k, (p, cd))| (serde_json::json!({ "type": "point", "color": [1.0, 0.9, 0.8], "intensity": cd }), serde_json::json!({ "name": format!("hard_{k}"), "translation": p })))
+        .collect();
+    common::set_lights(&mut json, defs);
     let out = gltf.with_file_name(format!("{name}.gltf"));
     std::fs::write(&out, serde_json::to_vec(&json).unwrap()).unwrap();
     out

@@ -594,16 +594,11 @@ fn synthetic_ground_truth_with_a_spot_is_recovered() {
     let (gltf, diag) = synthetic_scene_with(&dir, false, false, Emitter::None, Some((axis.to_array(), radius_by_dist)));
     // The start: the truth's lights in the file, the spot perturbed.
     let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
-    let mut nodes: Vec<Value> = json["nodes"].as_array().unwrap().clone();
-    for n in nodes.iter_mut() {
-        n.as_object_mut().unwrap().remove("extensions");
-    }
     let mut lights = Vec::new();
-    let mut roots: Vec<Value> = json["scenes"][0]["nodes"].as_array().unwrap().clone();
     for (k, (p, rgb)) in SYNTHETIC_TRUTH.iter().enumerate() {
         let m = rgb.iter().copied().fold(0.0f32, f32::max);
         let color = rgb.map(|c| c / m);
-        let mut node = serde_json::json!({ "name": format!("truth_{k}"), "translation": p, "extensions": { "KHR_lights_punctual": { "light": k } } });
+        let mut node = serde_json::json!({ "name": format!("truth_{k}"), "translation": p });
         let light = if k == 0 {
             node["translation"] = serde_json::json!([p[0] + 0.2, p[1] - 0.15, p[2] + 0.15]);
             let turned = (axis + glam::Vec3::new(0.15, 0.0, -0.1)).normalize();
@@ -613,17 +608,9 @@ fn synthetic_ground_truth_with_a_spot_is_recovered() {
         } else {
             serde_json::json!({ "type": "point", "color": color, "intensity": m * 683.0 })
         };
-        lights.push(light);
-        nodes.push(node);
-        roots.push((nodes.len() - 1).into());
+        lights.push((light, node));
     }
-    json["nodes"] = Value::Array(nodes);
-    json["scenes"][0]["nodes"] = Value::Array(roots);
-    json["extensions"]["KHR_lights_punctual"] = serde_json::json!({ "lights": lights });
-    let used = json["extensionsUsed"].as_array().cloned().unwrap_or_default();
-    if !used.iter().any(|u| u == "KHR_lights_punctual") {
-        json["extensionsUsed"] = Value::Array(used.into_iter().chain([Value::from("KHR_lights_punctual")]).collect());
-    }
+    common::set_lights(&mut json, lights);
     let start = dir.join("start.gltf");
     std::fs::write(&start, serde_json::to_vec(&json).unwrap()).unwrap();
     let rep = dir.join("r.json");

@@ -366,6 +366,14 @@ pub fn write_mesh(opts: &Options, path: &std::path::Path) -> Result<Option<subdi
     Ok(stats)
 }
 
+/// The luxel rows of `scene` (and the vertex-lit rows of `tg`), buried texels left out.
+fn luxel_rows(scene: &Scene, tg: &projection::Target, bvh: &Bvh) -> luxel::Luxels {
+    let (lo, hi) = scene.mesh.bounds();
+    let mut lx = luxel::rows(scene, tg, (hi - lo).length());
+    luxel::drop_buried(&mut lx, scene, bvh);
+    lx
+}
+
 /// The rows of the objective and their statistics.
 fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(Rows, TargetStats, Option<luxel::LuxelStats>, String)> {
     let (lo, hi) = scene.mesh.bounds();
@@ -380,8 +388,7 @@ fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(
             // The per-vertex projection is still needed for vertex-lit materials' rows.
             let vertex_lit = scene.materials.iter().any(|m| m.lighting == Lighting::Vertex);
             let (tg, tstats, backend) = if vertex_lit { project(plan, scene)? } else { (projection::Target::empty(scene.mesh.positions.len()), TargetStats::default(), "none needed".into()) };
-            let mut lx = luxel::rows(scene, &tg, diag);
-            luxel::drop_buried(&mut lx, scene, bvh);
+            let lx = luxel_rows(scene, &tg, bvh);
             (lx.rows, tstats, Some(lx.stats), format!("luxel rows on the cpu; vertex-lit projection: {backend}"))
         }
     })
@@ -389,7 +396,7 @@ fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(
 
 /// Which optional terms the model considers, and with which fixed settings.
 #[derive(Debug, Clone)]
-struct Plan2 {
+struct TermPlan {
     sun: Optional,
     sky: Optional,
     surfaces: Optional,
@@ -402,7 +409,7 @@ struct Plan2 {
 }
 
 /// The compile's settings where recorded (`_q3map2_cmdline`), the options otherwise.
-fn plan_terms(opts: &Options, scene: &Scene) -> (Plan2, String) {
+fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
     let c = &scene.compile;
     let recorded = c.cmdline.is_some();
     let from_record = |opt: Optional, on: bool| match opt {
@@ -417,7 +424,7 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (Plan2, String) {
     };
     let bounces = c.switch("-bounce").and_then(|v| v.parse::<usize>().ok()).unwrap_or(DEFAULT_BOUNCES).min(64);
     let sky_surfaces = scene.materials.iter().any(|m| m.sky);
-    let p = Plan2 {
+    let p = TermPlan {
         sun: if !sky_surfaces && scene.suns.is_empty() && opts.sun == Optional::Auto { Optional::Off } else { opts.sun },
         sky: if !scene.materials.iter().any(|m| !m.sky_lights.is_empty()) && opts.sky == Optional::Auto { Optional::Off } else { opts.sky },
         surfaces: if !scene.materials.iter().any(|m| m.emitter.is_some()) { Optional::Off } else { opts.surfaces },
@@ -438,7 +445,7 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (Plan2, String) {
 
 /// Traces what the model needs of the geometry for the terms `plan` considers; `st`
 /// records each one's time.
-fn build_bases(scene: &Scene, rows: &Rows, bvh: &Bvh, plan: &Plan2, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
+fn build_bases(scene: &Scene, rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
     let sky_triangles: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
     let sky = (plan.sky != Optional::Off).then(|| {
         let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
@@ -466,7 +473,7 @@ fn build_bases(scene: &Scene, rows: &Rows, bvh: &Bvh, plan: &Plan2, bounce_rays:
 /// The map's own emitters as the file declares them: the sun (from its directional
 /// light), the sky light and the surface lights (from the shaders' values), the
 /// worldspawn's minlight and ambient.
-fn declared_model(scene: &Scene, bases: &Bases, plan: &Plan2) -> Model {
+fn declared_model(scene: &Scene, bases: &Bases, plan: &TermPlan) -> Model {
     let e_per_byte = q3gltf_convert::units::e_per_byte(scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(2, |m| m.overbright_bits)) as f32;
     let e_irr = std::f32::consts::PI * e_per_byte;
     let sun = (plan.sun != Optional::Off).then(|| scene.suns.first().map(|s| Sun { to_sun: s.to_sun, rgb: s.color.map(|c| c * s.intensity_lux / LM_PER_W as f32) })).flatten();
@@ -494,11 +501,8 @@ pub struct Rendered {
 /// rows of `scene`.
 pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) -> Result<Rendered> {
     let bvh = Bvh::occluders(scene);
-    let (lo, hi) = scene.mesh.bounds();
-    let mut lx = luxel::rows(scene, &projection::Target::empty(scene.mesh.positions.len()), (hi - lo).length());
-    luxel::drop_buried(&mut lx, scene, &bvh);
-    let rows = lx.rows;
-    let plan = Plan2 {
+    let rows = luxel_rows(scene, &projection::Target::empty(scene.mesh.positions.len()), &bvh).rows;
+    let plan = TermPlan {
         sun: if model.sun.is_some() { Optional::On } else { Optional::Off },
         sky: if model.sky.is_some() { Optional::On } else { Optional::Off },
         surfaces: if model.surfaces.iter().any(Option::is_some) { Optional::On } else { Optional::Off },
@@ -859,7 +863,7 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 /// Decides each optional term (see [`Optional`]): with `auto` a term stays when the linear
 /// fit with it lowers the relative error by at least [`TERM_GAIN`] against the same fit
 /// without it. Appends one report per term considered.
-fn decide_terms(fit: &mut Fitter, terms: &Plan2, opts: &Options, out: &mut Vec<TermReport>) {
+fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Vec<TermReport>) {
     type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
     let mut list: Vec<(String, Optional, Set)> = Vec::new();
     if fit.bases.bounce.is_some() {

@@ -73,3 +73,31 @@ pub fn all_test_maps() -> Vec<(&'static str, String)> {
     v.extend(maps_in("pak6-patch088.pk3").into_iter().map(|m| ("pak6-patch088.pk3", m)));
     v
 }
+
+/// Replaces a glTF document's KHR_lights_punctual lights with `lights`, each a (light
+/// definition, node) pair; the node's `light` index is set here. Nodes keep everything
+/// but their old light extensions; the new nodes become scene roots.
+pub fn set_lights(json: &mut serde_json::Value, lights: Vec<(serde_json::Value, serde_json::Value)>) {
+    use serde_json::Value;
+    let mut nodes: Vec<Value> = json["nodes"].as_array().cloned().unwrap_or_default();
+    for n in nodes.iter_mut() {
+        if let Some(o) = n.as_object_mut() {
+            o.remove("extensions");
+        }
+    }
+    let mut roots: Vec<Value> = json["scenes"][0]["nodes"].as_array().cloned().unwrap_or_default();
+    let mut defs = Vec::new();
+    for (k, (light, mut node)) in lights.into_iter().enumerate() {
+        defs.push(light);
+        node["extensions"] = serde_json::json!({ "KHR_lights_punctual": { "light": k } });
+        nodes.push(node);
+        roots.push((nodes.len() - 1).into());
+    }
+    json["nodes"] = Value::Array(nodes);
+    json["scenes"][0]["nodes"] = Value::Array(roots);
+    json["extensions"]["KHR_lights_punctual"] = serde_json::json!({ "lights": defs });
+    let used = json["extensionsUsed"].as_array().cloned().unwrap_or_default();
+    if !used.iter().any(|u| u == "KHR_lights_punctual") {
+        json["extensionsUsed"] = Value::Array(used.into_iter().chain([Value::from("KHR_lights_punctual")]).collect());
+    }
+}

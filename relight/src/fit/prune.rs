@@ -69,12 +69,12 @@ impl Fitter<'_> {
         // a success (which renumbers the lights) does not make the scan try them again.
         let key = |l: &Light| l.pos.to_array().map(f32::to_bits);
         let mut failed: std::collections::HashSet<([u32; 3], [u32; 3])> = std::collections::HashSet::new();
-        let ceiling = self.fit_linear() * (1.0 + PRUNE_BUDGET) + tol;
+        let mut base = self.fit_linear();
+        let ceiling = base * (1.0 + PRUNE_BUDGET) + tol;
         'outer: loop {
             if self.out_of_time() {
                 return merged;
             }
-            let base = self.fit_linear();
             let k = self.model.lights.len();
             for a in 0..k {
                 for b in a + 1..k {
@@ -90,6 +90,7 @@ impl Fitter<'_> {
                     let e = self.fit_linear();
                     if e <= base + tol && e <= ceiling {
                         merged += 1;
+                        base = e;
                         continue 'outer;
                     }
                     (self.model, self.locked, self.vis) = saved;
