@@ -9,7 +9,8 @@
 #   make render          Cycles renders of relit RENDER_MAP (oa_dm1) and of its lightmaps,
 #                        from a spawn point, in out/render/ (relit.png, lightmap.png, small/)
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
-#                        relight of the sample and oa_dm1 (out/bench/relight.md)
+#                        relight of the sample and oa_dm1 (out/bench/relight.md), bake of
+#                        their relit scenes (out/bench/bake.md)
 #   make sample          regenerate the bundled sample from samples/src (committed)
 #   make fuzz            build the cargo-fuzz targets (fuzz/), seed them from the sample and
 #                        OpenArena, run each for FUZZ_SECONDS (default 60); see docs/limits.md
@@ -115,6 +116,7 @@ bench: build data
 	line="make -j2 maps: $$n maps in $$(awk "BEGIN{printf \"%.1f\", $$end - $$start}") s (2 jobs, includes start-up of each process)"; \
 	echo "$$line"; echo "$$line" >> $(OUT)/bench/convert.md
 	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
+	bash benches/bake.sh $(BIN)
 
 # Fuzzing (cargo-fuzz, libFuzzer): every parser for FUZZ_SECONDS each.
 fuzz: build data

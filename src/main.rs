@@ -3,6 +3,7 @@
 //! The command line only parses arguments, shows progress and prints reports; the work
 //! is done by the library crates (`q3gltf-convert`, `q3gltf-relight`).
 
+mod bake_cmd;
 mod relight_cmd;
 
 use clap::{Args, Parser, Subcommand};
@@ -45,6 +46,11 @@ enum Command {
     /// point (relight's forward model, with shadow rays through the scene): for checking
     /// units against a renderer.
     Probe(relight_cmd::ProbeArgs),
+    /// Render a scene's own light sources (a relit scene's lights, sun, emissive
+    /// surfaces and recorded terms) with relight's forward model into its lightmap layout:
+    /// HDR lightmaps (OpenEXR, linear e = E / pi), the original lightmaps decoded, and the
+    /// signed residual, with PNG previews: where a fit matches the baked lighting.
+    Bake(bake_cmd::BakeArgs),
 }
 
 #[derive(Args)]
@@ -135,6 +141,13 @@ fn main() -> ExitCode {
         Command::Info(a) => run_info(a),
         Command::Maps(a) => run_maps(a),
         Command::Probe(a) => match relight_cmd::probe(a) {
+            Ok(()) => return ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("q3gltf: error: {e}");
+                return ExitCode::from(1);
+            }
+        },
+        Command::Bake(a) => match bake_cmd::run(a) {
             Ok(()) => return ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("q3gltf: error: {e}");

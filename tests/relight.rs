@@ -628,3 +628,39 @@ fn synthetic_ground_truth_with_a_spot_is_recovered() {
     let cone = spot["spot_angle_deg"].as_f64().unwrap().to_radians().tan();
     assert!((cone / radius_by_dist as f64 - 1.0).abs() < 0.05, "spot cone tan {cone}, expected {radius_by_dist}");
 }
+
+/// The synthetic ground truth baked with the very lights that made its lightmap: the
+/// residual is at the quantisation floor everywhere (every relit texel inside the
+/// interval its byte stands for, up to the rounding of candela in the file), and the
+/// relative error is zero to that floor.
+#[test]
+fn bake_of_the_synthetic_ground_truth_is_at_the_quantisation_floor() {
+    let dir = tmp("synthetic-bake");
+    let (gltf, _) = synthetic_scene(&dir, false, false);
+    let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    let lights = SYNTHETIC_TRUTH
+        .iter()
+        .enumerate()
+        .map(|(k, (p, rgb))| {
+            let m = rgb.iter().copied().fold(0.0f32, f32::max);
+            (serde_json::json!({ "type": "point", "color": rgb.map(|c| c / m), "intensity": m as f64 * 683.0 }), serde_json::json!({ "name": format!("truth_{k}"), "translation": p }))
+        })
+        .collect();
+    common::set_lights(&mut json, lights);
+    let truth = dir.join("truth.gltf");
+    std::fs::write(&truth, serde_json::to_vec(&json).unwrap()).unwrap();
+    let out = dir.join("bake");
+    run(&["bake", truth.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "-q"]);
+    let b = report(&out.join("bake.json"));
+    assert_eq!(b["lights"], 3);
+    let err = b["rel_error"].as_f64().unwrap();
+    assert!(err < 1e-3, "relative error {err}");
+    let pages = b["pages"].as_array().unwrap();
+    assert!(!pages.is_empty());
+    for p in pages {
+        // One byte of e is 4 / 255 = 0.0157.
+        let worst = p["residual_max_abs"].as_f64().unwrap();
+        assert!(worst < 1e-4, "{}: residual up to {worst} (e)", p["name"]);
+        assert!(p["texels"].as_u64().unwrap() > 0);
+    }
+}

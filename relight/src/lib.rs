@@ -10,9 +10,11 @@
 //! term, with its gradient; [`fit`] drives the optimisers ([`optim`]) in phases on a
 //! [`backend`] (the CPU or [`gpu`]); [`init`] places the starting lights and searches the
 //! sun; [`pipeline`] runs the stages; [`io::lights_out`] writes the result and [`report`]
-//! the numbers; [`probe`] evaluates the model at one point.
+//! the numbers; [`probe`] evaluates the model at one point; [`bake`] renders a file's own
+//! lights into its lightmap layout (EXR) beside the original and the residual.
 
 pub mod backend;
+pub mod bake;
 pub mod error;
 pub mod fit;
 pub mod gather;

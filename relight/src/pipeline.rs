@@ -17,7 +17,7 @@ use crate::fit::{Fitter, IterRecord, PhaseSummary};
 use crate::init;
 use crate::io::gltf_in;
 use crate::io::lights_out::{self, OutLight, OutSpot, LM_PER_W};
-use crate::model::{self, Bases, Light, Model, Spot, Sun};
+use crate::model::{self, Bases, Light, Model, Sun};
 use crate::rows::projection::{self, TargetStats};
 use crate::rows::{luxel, Rows};
 use crate::scene::{Lighting, Scene};
@@ -488,18 +488,30 @@ fn declared_model(scene: &Scene, bases: &Bases, plan: &TermPlan) -> Model {
 }
 
 /// The model's lightmap of a scene: one luxel row per lightmap texel, as relight fits
-/// them, and the model's radiance at each (W/(m^2 sr)), computed by the CPU reference.
-/// The lightmap byte q3map2 would store for a row is `x / albedo` in the units of
-/// [`crate::scene::Material::decode`]. Used to make synthetic ground truth and to bake.
+/// them, and the model's radiance and irradiance at each. The lightmap byte q3map2 would
+/// store for a row is `x / albedo` in the units of [`crate::scene::Material::decode`].
+/// Used to make synthetic ground truth and to bake ([`crate::bake`]).
 pub struct Rendered {
     pub rows: Rows,
+    /// Radiance toward the viewer, W/(m^2 sr) per channel: `albedo E / pi`.
     pub radiance: Vec<[f64; 3]>,
+    /// Irradiance `E`, W/m^2 per channel: every term, dirt, filter and bounces included,
+    /// floored at the minlight (the lightmap's `e` is `E / pi`).
+    pub irradiance: Vec<[f64; 3]>,
+    /// The backend that traced and lit it ([`Backend::name`]).
+    pub backend: String,
 }
 
 /// Renders `model` (its lights, sun, sky, surfaces, ambient, minlight, dirt, filter and
 /// `bounces` passes of bounced light traced with `bounce_rays` rays per row) on the luxel
-/// rows of `scene`.
+/// rows of `scene`, on the CPU.
 pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) -> Result<Rendered> {
+    render_on(scene, model, bounces, bounce_rays, BackendChoice::Cpu)
+}
+
+/// [`render`] with the shadow rays and the point and spot lights on the chosen backend
+/// (the rest of the model runs on the CPU in f64 either way).
+pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize, choice: BackendChoice) -> Result<Rendered> {
     let bvh = Bvh::occluders(scene);
     let rows = luxel_rows(scene, &projection::Target::empty(scene.mesh.positions.len()), &bvh).rows;
     let plan = TermPlan {
@@ -514,12 +526,20 @@ pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) 
     };
     let mut st = Stages { t: Instant::now(), list: Vec::new() };
     let bases = build_bases(scene, &rows, &bvh, &plan, bounce_rays, false, &mut st);
-    let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+    let (device, _) = choose_backend(choice)?;
+    let mut backend: Box<dyn Backend + '_> = match device {
+        Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),
+        Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
+    };
     let mut vis = crate::trace::visibility::Visibility::default();
     vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &bases.sky_triangles));
-    vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| cpu.trace(p))?;
-    let radiance = model::radiance(model, &rows, &bases, &vis, &mut cpu)?;
-    Ok(Rendered { rows, radiance })
+    vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| backend.trace(p))?;
+    let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(&vis, &model.lights)? };
+    let fw = model::forward(model, &rows, &bases, &vis, &e);
+    let irradiance = fw.total.iter().map(|t| [0, 1, 2].map(|c| model.minlight.map_or(t[c], |m| t[c].max(m[c] as f64)))).collect();
+    let name = backend.name();
+    drop(backend);
+    Ok(Rendered { rows, radiance: fw.x, irradiance, backend: name })
 }
 
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
@@ -581,11 +601,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         .lights
         .iter()
         .enumerate()
-        .map(|(k, l)| {
-            let i = l.intensity_cd as f64 / LM_PER_W;
-            let spot = l.spot.map(|(axis, radius_by_dist)| Spot { axis, radius_by_dist });
-            (Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32), spot }, l.locked || opts.fit == FitMode::Globals, k)
-        })
+        .map(|(k, l)| (Light::from_input(l), l.locked || opts.fit == FitMode::Globals, k))
         .collect();
     // Without a declared sun: searched where sky surfaces could let one in.
     if terms.sun != Optional::Off && start.sun.is_none() && opts.fit == FitMode::All {

@@ -264,6 +264,26 @@ pub struct Scene {
     pub units_m: f32,
     /// The compile's recorded settings.
     pub compile: Compile,
+    /// The terms of relight's model that a relit file records only in its scene extras.
+    pub relit: Option<Relit>,
+}
+
+/// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the
+/// terms that are not lights or emission, which the file carries itself. Blender keeps
+/// them only when "Custom Properties" is ticked on export.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Relit {
+    /// Ambient irradiance added before dirt, W/m^2 per channel.
+    pub ambient: Option<[f32; 3]>,
+    /// Floor of the total irradiance, W/m^2 per channel.
+    pub minlight: Option<[f32; 3]>,
+    /// Scale of each pass of bounced light, per channel.
+    pub bounce_scale: Option<[f32; 3]>,
+    /// Passes of bounced light the fit used.
+    pub bounces: usize,
+    /// q3map2's `-dirt` and `-filter` were part of the model.
+    pub dirt: bool,
+    pub filter: bool,
 }
 
 /// How q3map2 sampled the lightmap, in Quake units (its source: `MapSingleLuxel`,

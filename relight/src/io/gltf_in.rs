@@ -584,7 +584,8 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     lights.sort_by_key(|l| l.node);
     suns.sort_by_key(|s| s.node);
     let units_m = scene_extras.get("q3_scale").and_then(Value::as_f64).filter(|s| s.is_finite() && *s > 1e-6 && *s < 1e3).unwrap_or(q3gltf_convert::units::DEFAULT_SCALE) as f32;
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile })
+    let relit = scene_extras.get("q3_relight").and_then(relit_of);
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).
@@ -617,6 +618,24 @@ fn compile_of(ex: &Value) -> crate::scene::Compile {
         minlight: num("_minlight").filter(|v| *v > 0.0).map(|v| color.map(|c| c * v)),
         ambient: num("_ambient").or_else(|| num("ambient")).filter(|v| *v > 0.0).map(|v| color.map(|c| c * v)),
     }
+}
+
+/// The model terms a relit file records in its scene extras (`q3_relight`, written by
+/// [`crate::io::lights_out`]); values that are not finite and non-negative are dropped.
+fn relit_of(ex: &Value) -> Option<crate::scene::Relit> {
+    let rgb = |k: &str| -> Option<[f32; 3]> {
+        let a = ex.get(k)?.as_array().filter(|a| a.len() == 3)?;
+        let v = [0, 1, 2].map(|c| a[c].as_f64().unwrap_or(f64::NAN) as f32);
+        v.iter().all(|x| x.is_finite() && *x >= 0.0).then_some(v)
+    };
+    ex.is_object().then(|| crate::scene::Relit {
+        ambient: rgb("ambient"),
+        minlight: rgb("minlight"),
+        bounce_scale: rgb("bounce_scale"),
+        bounces: ex.get("bounces").and_then(Value::as_u64).unwrap_or(0).min(64) as usize,
+        dirt: ex.get("dirt").and_then(Value::as_bool).unwrap_or(false),
+        filter: ex.get("filter").and_then(Value::as_bool).unwrap_or(false),
+    })
 }
 
 /// Vertices without a usable normal get the area-weighted normal of their triangles.

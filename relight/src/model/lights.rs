@@ -62,6 +62,12 @@ impl Light {
     pub fn max_rgb(&self) -> f32 {
         self.rgb[0].max(self.rgb[1]).max(self.rgb[2])
     }
+    /// A file's point or spot light: candela to radiant intensity (`I = cd / 683` W/sr,
+    /// CONVENTIONS.md) per channel of its colour.
+    pub fn from_input(l: &crate::scene::InputLight) -> Light {
+        let i = l.intensity_cd as f64 / crate::io::lights_out::LM_PER_W;
+        Light { pos: l.position, rgb: l.color.map(|c| (c as f64 * i) as f32), spot: l.spot.map(|(axis, radius_by_dist)| Spot { axis, radius_by_dist }) }
+    }
     /// What the visibility cache needs of a light: position and brightest channel.
     pub fn source(&self) -> (Vec3, f32) {
         (self.pos, self.max_rgb())

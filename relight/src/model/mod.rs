@@ -33,6 +33,7 @@ pub mod bounce;
 pub mod compile;
 pub mod lights;
 pub mod sky;
+pub mod stated;
 pub mod sun;
 pub mod surface;
 

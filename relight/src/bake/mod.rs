@@ -1,0 +1,302 @@
+//! Baking: the lighting a scene's own light sources give, rendered with relight's forward
+//! model into the scene's lightmap layout, next to the original lightmaps and their
+//! difference. What a user looks at to see where a fit matches the baked lighting and
+//! where not, and HDR lightmaps for engines that still use them.
+//!
+//! Data flow: [`crate::io::gltf_in`] reads the scene; [`crate::model::stated`] turns what
+//! the file states (its lights, sun, emission and relight's recorded terms) into a
+//! [`Model`](crate::model::Model); [`crate::pipeline::render_on`] evaluates it on the luxel
+//! rows (every term: shadows, surfaces, sky, dirt, filter, bounces); [`page`] lays the
+//! rows' values out on their lightmap pages; [`encode`] writes them. Every file is staged
+//! and renamed into `OUTDIR` together ([`q3gltf_convert::output::Staged`]).
+//!
+//! Values are the lightmap's linear units: `e = E / pi` (the radiance of a white
+//! Lambertian surface, W/(m^2 sr); CONVENTIONS.md), the same `e` the original decodes to
+//! (each byte at the middle of the interval it stands for). Per page `NAME`:
+//!
+//! - `NAME.relit.exr`: the model's `e`, padded by [`Options::padding`] texels around the
+//!   charts; alpha 1 where a texel has a row;
+//! - `NAME.original.exr`: the original lightmap decoded, padded alike;
+//! - `NAME.residual.exr`: how far the relit `e` lies outside the interval the original
+//!   byte stands for (`[b, b + 1)`, [`crate::scene::Material::interval`]): 0 where the
+//!   byte agrees, signed; where the original has a channel at 255 (a lower bound) only a
+//!   shortfall counts; 0 on texels without a row;
+//! - with previews, `NAME.{relit,original,residual}.png` ([`encode`]);
+//! - `bake.json`: the [`Report`].
+//!
+//! The relative error reported is relight's own ([`crate::rows`]: the byte intervals,
+//! censored texels as lower bounds) over the lightmap texels, so it matches the error a
+//! relight run reports for the model it wrote (which also counts vertex-lit surfaces).
+
+pub mod encode;
+pub mod page;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::io::gltf_in;
+use crate::model::stated;
+use crate::pipeline::{render_on, BackendChoice};
+use crate::rows::projection::CENSOR_BYTE;
+use page::Page;
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub input: PathBuf,
+    pub out_dir: PathBuf,
+    /// Passes of bounced light; `None`: as the file records (`q3_relight.bounces`, 0 if absent).
+    pub bounces: Option<usize>,
+    /// Rays per row of the bounce operator.
+    pub bounce_rays: usize,
+    /// EXR samples as 16-bit floats (else 32-bit).
+    pub half: bool,
+    /// Texels of padding around the charts of the relit and original pages.
+    pub padding: u32,
+    /// Write PNG previews.
+    pub previews: bool,
+    pub backend: BackendChoice,
+}
+
+/// One lightmap page of the bake.
+#[derive(Debug, Clone, Serialize)]
+pub struct PageReport {
+    pub name: String,
+    /// Index of the lightmap among the scene's textures (relight's reading order).
+    pub texture: usize,
+    pub width: u32,
+    pub height: u32,
+    /// Texels with a row (the rest is padding or unused).
+    pub texels: usize,
+    /// Texels whose original has a channel at 255 (the data is only a lower bound).
+    pub censored: usize,
+    /// Mean `e` over the covered texels, per channel.
+    pub relit_mean: [f64; 3],
+    pub original_mean: [f64; 3],
+    /// Root mean square and largest magnitude of the residual's channels over covered
+    /// texels, in `e`.
+    pub residual_rms: f64,
+    pub residual_max_abs: f64,
+}
+
+/// What a bake made (also written as `OUTDIR/bake.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub input: String,
+    pub out_dir: String,
+    pub backend: String,
+    /// Terms of the stated model.
+    pub lights: usize,
+    pub sun: bool,
+    pub sky: bool,
+    pub surface_lights: usize,
+    pub ambient: Option<[f32; 3]>,
+    pub minlight: Option<[f32; 3]>,
+    pub bounces: usize,
+    pub dirt: bool,
+    pub filter: bool,
+    pub notes: Vec<String>,
+    /// Luxel rows rendered; vertex-lit rows have no lightmap and are not baked.
+    pub luxels: usize,
+    pub vertex_rows_skipped: usize,
+    /// Relight's relative error of the stated model against the original lightmaps.
+    pub rel_error: f64,
+    /// The residual previews' colour map spans `[-residual_range, residual_range]` in
+    /// luminance of `e`.
+    pub residual_range: f64,
+    pub pages: Vec<PageReport>,
+    /// Files written, relative to `out_dir`.
+    pub files: Vec<String>,
+    /// Seconds per stage.
+    pub stages: Vec<(String, f64)>,
+    pub seconds: f64,
+}
+
+/// Progress of a bake, for the command line.
+pub trait Progress {
+    fn stage(&self, name: &str);
+}
+
+/// No display.
+pub struct Quiet;
+impl Progress for Quiet {
+    fn stage(&self, _: &str) {}
+}
+
+pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
+    let t0 = Instant::now();
+    let mut stages: Vec<(String, f64)> = Vec::new();
+    let mut t = Instant::now();
+    let mut done = |name: &str, t: &mut Instant| {
+        stages.push((name.to_string(), t.elapsed().as_secs_f64()));
+        *t = Instant::now();
+    };
+    progress.stage("read");
+    let mut scene = gltf_in::read(&opts.input)?;
+    let st = stated::stated(&mut scene, opts.bounces);
+    done("read", &mut t);
+
+    progress.stage("render");
+    let r = render_on(&scene, &st.model, st.bounces, opts.bounce_rays, opts.backend)?;
+    done("render", &mut t);
+    let rows = &r.rows;
+    let luxel = |i: usize| rows.texel[i][0] != u32::MAX;
+    let luxels = (0..rows.len()).filter(|&i| luxel(i)).count();
+    if luxels == 0 {
+        return Err(Error::unsupported(&opts.input, "no lightmapped surface (no lightmap on TEXCOORD_1): nothing to bake"));
+    }
+
+    // e per row: the model's, and the original byte's (the middle of its interval).
+    let pi = std::f64::consts::PI;
+    let relit: Vec<[f64; 3]> = r.irradiance.iter().map(|e| e.map(|v| v / pi)).collect();
+    let mut censored_row = vec![false; rows.len()];
+    // Per row and channel: the byte's interval of e.
+    let mut interval = vec![[(0.0f64, 0.0f64); 3]; rows.len()];
+    let original: Vec<[f64; 3]> = (0..rows.len())
+        .map(|i| {
+            let [tex, x, y] = rows.texel[i];
+            let (Some(t), Some(m)) = (scene.textures.get(tex as usize), scene.materials.get(rows.material[i] as usize)) else { return [0.0; 3] };
+            let o = (y as usize * t.width as usize + x as usize) * 4;
+            let b = [t.rgba8[o], t.rgba8[o + 1], t.rgba8[o + 2]];
+            censored_row[i] = b.iter().any(|&v| v >= CENSOR_BYTE);
+            interval[i] = b.map(|v| {
+                let (lo, hi) = m.interval(v);
+                (lo as f64, hi as f64)
+            });
+            b.map(|v| m.decode(v as f32 / 255.0) as f64)
+        })
+        .collect();
+    // Distance outside the byte's interval; a censored texel is a lower bound, so only
+    // falling short of it counts.
+    let residual: Vec<[f64; 3]> = (0..rows.len())
+        .map(|i| {
+            [0, 1, 2].map(|c| {
+                let (v, (lo, hi)) = (relit[i][c], interval[i][c]);
+                if censored_row[i] {
+                    (v - lo).min(0.0)
+                } else {
+                    v - v.clamp(lo, hi.max(lo))
+                }
+            })
+        })
+        .collect();
+    let censored_flag: Vec<[f64; 3]> = censored_row.iter().map(|&c| if c { [1.0; 3] } else { [0.0; 3] }).collect();
+
+    let mut relit_pages = page::splat(rows, &relit, &scene.textures);
+    let mut original_pages = page::splat(rows, &original, &scene.textures);
+    let residual_pages = page::splat(rows, &residual, &scene.textures);
+    let censored_pages = page::splat(rows, &censored_flag, &scene.textures);
+
+    // Relight's error of this model.
+    let mut num = 0.0;
+    for i in 0..rows.len() {
+        for c in 0..3 {
+            num += crate::rows::residual(r.radiance[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64).2;
+        }
+    }
+    let rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+
+    // One colour scale for every residual preview: the 99th percentile of |luminance|,
+    // at least one byte of the default encoding.
+    let mut mags: Vec<f32> = residual_pages.iter().flat_map(|p| p.rgb.iter().zip(&p.covered).filter(|(_, c)| **c).map(|(v, _)| encode::luminance(*v).abs())).collect();
+    mags.sort_by(f32::total_cmp);
+    let p99 = mags.get(((mags.len() as f64 * 0.99) as usize).min(mags.len().saturating_sub(1))).copied().unwrap_or(0.0);
+    let residual_range = (p99 as f64).max(4.0 / 255.0);
+
+    let mut pages = Vec::new();
+    for ((rp, op), (dp, cp)) in relit_pages.iter().zip(&original_pages).zip(residual_pages.iter().zip(&censored_pages)) {
+        let name = format!("lightmap_{:03}", rp.texture);
+        let mean = |p: &Page| -> [f64; 3] {
+            let mut s = [0.0f64; 3];
+            let mut n = 0usize;
+            for (v, c) in p.rgb.iter().zip(&p.covered) {
+                if *c {
+                    (0..3).for_each(|k| s[k] += v[k] as f64);
+                    n += 1;
+                }
+            }
+            s.map(|v| v / n.max(1) as f64)
+        };
+        let (mut sq, mut n, mut mx) = (0.0f64, 0usize, 0.0f64);
+        for (v, c) in dp.rgb.iter().zip(&dp.covered) {
+            if *c {
+                for k in 0..3 {
+                    sq += (v[k] as f64).powi(2);
+                    mx = mx.max((v[k] as f64).abs());
+                }
+                n += 3;
+            }
+        }
+        pages.push(PageReport {
+            name,
+            texture: rp.texture,
+            width: rp.width,
+            height: rp.height,
+            texels: rp.texels_covered(),
+            censored: cp.rgb.iter().zip(&cp.covered).filter(|(v, c)| **c && v[0] > 0.5).count(),
+            relit_mean: mean(rp),
+            original_mean: mean(op),
+            residual_rms: (sq / n.max(1) as f64).sqrt(),
+            residual_max_abs: mx,
+        });
+    }
+    for p in relit_pages.iter_mut().chain(original_pages.iter_mut()) {
+        page::pad(p, opts.padding);
+    }
+    done("pages", &mut t);
+
+    progress.stage("write");
+    let mut staged = q3gltf_convert::output::Staged::new();
+    let io = |e: std::io::Error, p: &Path| Error::Usage(format!("{}: {e}", p.display()));
+    staged.create_dir_all(&opts.out_dir).map_err(|e| io(e, &opts.out_dir))?;
+    let mut files = Vec::new();
+    let mut add = |staged: &mut q3gltf_convert::output::Staged, name: String, bytes: Vec<u8>| -> Result<()> {
+        let path = opts.out_dir.join(&name);
+        staged.add(&path, &bytes).map_err(|e| io(e, &path))?;
+        files.push(name);
+        Ok(())
+    };
+    for (k, p) in pages.iter().enumerate() {
+        let ob = scene.materials.iter().find(|m| m.lightmap == Some(p.texture)).map_or(2, |m| m.overbright_bits);
+        for (kind, pg) in [("relit", &relit_pages[k]), ("original", &original_pages[k]), ("residual", &residual_pages[k])] {
+            add(&mut staged, format!("{}.{kind}.exr", p.name), encode::exr(pg, opts.half)?)?;
+            if opts.previews {
+                let png = if kind == "residual" { encode::residual_preview(pg, residual_range as f32)? } else { encode::preview(pg, ob)? };
+                add(&mut staged, format!("{}.{kind}.png", p.name), png)?;
+            }
+        }
+    }
+    let m = &st.model;
+    let mut report = Report {
+        input: opts.input.display().to_string(),
+        out_dir: opts.out_dir.display().to_string(),
+        backend: r.backend.clone(),
+        lights: m.lights.len(),
+        sun: m.sun.is_some(),
+        sky: m.sky.is_some(),
+        surface_lights: m.surfaces.iter().filter(|s| s.is_some()).count(),
+        ambient: m.ambient,
+        minlight: m.minlight,
+        bounces: if m.bounce.is_some() { st.bounces } else { 0 },
+        dirt: m.dirt,
+        filter: m.filter,
+        notes: st.notes.clone(),
+        luxels,
+        vertex_rows_skipped: rows.len() - luxels,
+        rel_error,
+        residual_range,
+        pages,
+        files,
+        stages,
+        seconds: 0.0,
+    };
+    report.files.push("bake.json".into());
+    report.seconds = t0.elapsed().as_secs_f64();
+    let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Usage(format!("bake report: {e}")))?;
+    let path = opts.out_dir.join("bake.json");
+    staged.add(&path, &json).map_err(|e| io(e, &path))?;
+    staged.commit().map_err(|e| io(e, &opts.out_dir))?;
+    Ok(report)
+}
