@@ -536,7 +536,7 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
     vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| backend.trace(p))?;
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(&vis, &model.lights)? };
     let fw = model::forward(model, &rows, &bases, &vis, &e);
-    let irradiance = fw.total.iter().map(|t| [0, 1, 2].map(|c| model.minlight.map_or(t[c], |m| t[c].max(m[c] as f64)))).collect();
+    let irradiance = fw.total.iter().map(|t| [0, 1, 2].map(|c| model.floored(t[c], c))).collect();
     let name = backend.name();
     drop(backend);
     Ok(Rendered { rows, radiance: fw.x, irradiance, backend: name })

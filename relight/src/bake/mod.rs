@@ -98,9 +98,8 @@ pub struct Report {
     pub dirt: bool,
     pub filter: bool,
     pub notes: Vec<String>,
-    /// Luxel rows rendered; vertex-lit rows have no lightmap and are not baked.
+    /// Luxel rows rendered (vertex-lit surfaces have no lightmap and are not baked).
     pub luxels: usize,
-    pub vertex_rows_skipped: usize,
     /// Relight's relative error of the stated model against the original lightmaps.
     pub rel_error: f64,
     /// The residual previews' colour map spans `[-residual_range, residual_range]` in
@@ -141,9 +140,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     progress.stage("render");
     let r = render_on(&scene, &st.model, st.bounces, opts.bounce_rays, opts.backend)?;
     done("render", &mut t);
+    // Luxel rows only: `render_on` makes no rows for vertex-lit surfaces.
     let rows = &r.rows;
-    let luxel = |i: usize| rows.texel[i][0] != u32::MAX;
-    let luxels = (0..rows.len()).filter(|&i| luxel(i)).count();
+    let luxels = rows.len();
     if luxels == 0 {
         return Err(Error::unsupported(&opts.input, "no lightmapped surface (no lightmap on TEXCOORD_1): nothing to bake"));
     }
@@ -182,21 +181,15 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             })
         })
         .collect();
-    let censored_flag: Vec<[f64; 3]> = censored_row.iter().map(|&c| if c { [1.0; 3] } else { [0.0; 3] }).collect();
+    let mut censored_on = vec![0usize; scene.textures.len()];
+    for (i, &c) in censored_row.iter().enumerate() {
+        censored_on[rows.texel[i][0] as usize] += c as usize;
+    }
 
     let mut relit_pages = page::splat(rows, &relit, &scene.textures);
     let mut original_pages = page::splat(rows, &original, &scene.textures);
     let residual_pages = page::splat(rows, &residual, &scene.textures);
-    let censored_pages = page::splat(rows, &censored_flag, &scene.textures);
-
-    // Relight's error of this model.
-    let mut num = 0.0;
-    for i in 0..rows.len() {
-        for c in 0..3 {
-            num += crate::rows::residual(r.radiance[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64).2;
-        }
-    }
-    let rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    let rel_error = rows.rel_error(&r.radiance);
 
     // One colour scale for every residual preview: the 99th percentile of |luminance|,
     // at least one byte of the default encoding.
@@ -206,7 +199,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let residual_range = (p99 as f64).max(4.0 / 255.0);
 
     let mut pages = Vec::new();
-    for ((rp, op), (dp, cp)) in relit_pages.iter().zip(&original_pages).zip(residual_pages.iter().zip(&censored_pages)) {
+    for ((rp, op), dp) in relit_pages.iter().zip(&original_pages).zip(&residual_pages) {
         let name = format!("lightmap_{:03}", rp.texture);
         let mean = |p: &Page| -> [f64; 3] {
             let mut s = [0.0f64; 3];
@@ -235,7 +228,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             width: rp.width,
             height: rp.height,
             texels: rp.texels_covered(),
-            censored: cp.rgb.iter().zip(&cp.covered).filter(|(v, c)| **c && v[0] > 0.5).count(),
+            censored: censored_on[rp.texture],
             relit_mean: mean(rp),
             original_mean: mean(op),
             residual_rms: (sq / n.max(1) as f64).sqrt(),
@@ -249,7 +242,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     progress.stage("write");
     let mut staged = q3gltf_convert::output::Staged::new();
-    let io = |e: std::io::Error, p: &Path| Error::Usage(format!("{}: {e}", p.display()));
+    let io = |source: std::io::Error, p: &Path| Error::Io { path: p.display().to_string(), source };
     staged.create_dir_all(&opts.out_dir).map_err(|e| io(e, &opts.out_dir))?;
     let mut files = Vec::new();
     let mut add = |staged: &mut q3gltf_convert::output::Staged, name: String, bytes: Vec<u8>| -> Result<()> {
@@ -284,7 +277,6 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         filter: m.filter,
         notes: st.notes.clone(),
         luxels,
-        vertex_rows_skipped: rows.len() - luxels,
         rel_error,
         residual_range,
         pages,

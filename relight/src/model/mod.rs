@@ -72,6 +72,17 @@ pub struct Model {
     pub filter: bool,
 }
 
+impl Model {
+    /// Total irradiance `t` of channel `c` (W/m^2) after the minlight floor.
+    #[inline]
+    pub fn floored(&self, t: f64, c: usize) -> f64 {
+        match self.minlight {
+            Some(m) => t.max(m[c] as f64),
+            None => t,
+        }
+    }
+}
+
 /// What the model needs of the geometry, computed once per set of rows.
 #[derive(Debug, Clone, Default)]
 pub struct Bases {
@@ -248,10 +259,7 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
     let x = (0..n)
         .map(|i| {
             [0, 1, 2].map(|c| {
-                let t = match model.minlight {
-                    Some(m) => total[i][c].max(m[c] as f64),
-                    None => total[i][c],
-                };
+                let t = model.floored(total[i][c], c);
                 let mut v = rows.albedo[i][c] as f64 / PI * t;
                 if let (Some(k), Some(o)) = (model.gathered, &bases.gathered) {
                     v += k[c] as f64 * o[i][c] as f64;

@@ -113,6 +113,18 @@ impl Rows {
         Rows { sampling, ..Default::default() }
     }
 
+    /// The relative error of radiance `x` (one value per row and channel; see the module
+    /// docs), what [`crate::model::evaluate`] reports.
+    pub fn rel_error(&self, x: &[[f64; 3]]) -> f64 {
+        let mut num = 0.0;
+        for (i, xi) in x.iter().enumerate().take(self.len()) {
+            for c in 0..3 {
+                num += residual(xi[c], self.lo[i][c] as f64, self.hi[i][c] as f64, self.weight[i][c] as f64, self.lower[i][c] as f64, self.area[i] as f64).2;
+            }
+        }
+        if self.norm2 > 0.0 { (num / self.norm2).sqrt() } else { 0.0 }
+    }
+
     pub fn push(&mut self, r: Row) {
         self.vertex.push(r.vertex);
         self.material.push(r.material);
