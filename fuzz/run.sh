@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SECONDS_EACH=${FUZZ_SECONDS:-60}
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(bsp shader pk3 texture gltf_in)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(bsp shader pk3 texture gltf_in baked_gltf)
 
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install cargo-fuzz --locked
 if rustup toolchain list 2>/dev/null | grep -q '^nightly'; then
@@ -49,7 +49,12 @@ for t in "${TARGETS[@]}"; do
   echo "fuzz: $t for ${SECONDS_EACH}s ($toolchain, sanitizer $sanitizer)"
   set +e
   # -rss_limit_mb: an input that makes a parser allocate past 2 GiB is a failure too.
-  (cd fuzz && "../$bindir/$t" "corpus/$t" "seeds/$t" \
+  # xatlas (vendored by xatlas-rs 0.1.3) leaks an index array per chart (its Array's
+  # assignment is a shallow copy): leak checks off for the target that runs it; ASan still
+  # reports every invalid access or double free.
+  extra=(); asan=${ASAN_OPTIONS:-}
+  [ "$t" = baked_gltf ] && { extra=(-detect_leaks=0); asan=${asan:+$asan:}detect_leaks=0; }
+  (cd fuzz && ASAN_OPTIONS=$asan "../$bindir/$t" "corpus/$t" "seeds/$t" "${extra[@]}" \
       -max_total_time="$SECONDS_EACH" -timeout=20 -rss_limit_mb=2048 -print_final_stats=1 \
       -artifact_prefix="artifacts/$t/") > "$log" 2>&1
   rc=$?

@@ -15,7 +15,7 @@ BASEOA=${BASEOA:-$(bash samples/fetch-openarena.sh)}
 $CARGO build --release -q -p q3gltf-convert --example bsp_subset
 SUBSET=target/release/examples/bsp_subset
 rm -rf "$S"
-mkdir -p "$S"/{bsp,shader,pk3,texture,gltf_in}
+mkdir -p "$S"/{bsp,shader,pk3,texture,gltf_in,baked_gltf}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 
@@ -84,6 +84,10 @@ binary = data[28 + jl:28 + jl + bl]
 doc['buffers'][0]['uri'] = 'data:application/octet-stream;base64,' + base64.b64encode(binary).decode()
 json.dump(doc, open(sys.argv[2], 'w'))
 PY
-for t in bsp shader pk3 texture gltf_in; do
+# The bake's glTF editing reads the same files (and a bake's own output: a new atlas).
+cp "$S"/gltf_in/* "$S/baked_gltf/"
+"$BIN" bake "$S/gltf_in/sample.glb" -o "$tmp/bake" --new-uvs --backend cpu --no-previews -q >/dev/null
+cp "$tmp/bake/baked.glb" "$S/baked_gltf/sample-baked.glb"
+for t in bsp shader pk3 texture gltf_in baked_gltf; do
   echo "seeds/$t: $(ls "$S/$t" | wc -l) files, $(du -sk "$S/$t" | cut -f1) KiB"
 done

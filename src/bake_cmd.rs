@@ -15,7 +15,8 @@ pub struct BakeArgs {
     /// `convert --lights-from`, the map's light entities are rendered).
     pub input: PathBuf,
     /// Output folder: per lightmap page `lightmap_NNN.{relit,original,residual}.exr`
-    /// (linear e = E / pi, alpha = texel covered), PNG previews and bake.json.
+    /// (linear e = E / pi, alpha = texel covered), PNG previews, baked.glb (the scene with
+    /// the relit lightmaps in place of its own) and bake.json.
     #[arg(short, long, value_name = "OUTDIR")]
     pub output: PathBuf,
     /// Passes of bounced light (default: as relight recorded in the file, else none).
@@ -27,9 +28,20 @@ pub struct BakeArgs {
     /// Write 16-bit float EXR samples (default 32-bit).
     #[arg(long)]
     pub half: bool,
-    /// Texels of padding around each chart of the relit and original pages.
+    /// Texels of padding around each chart: rings filled around the charts of every page
+    /// written, and the empty space kept between charts of a new atlas.
     #[arg(long, default_value_t = 2)]
     pub padding: u32,
+    /// Chart every lightmapped surface into one new atlas (xatlas) at --texel-size, instead
+    /// of keeping the map's lightmap layout. Surfaces without lightmap coordinates (meshes
+    /// added in Blender) are charted in any case.
+    #[arg(long = "new-uvs")]
+    pub new_uvs: bool,
+    /// Texel size of a new atlas, meters of surface per texel (default: that of the scene's
+    /// own lightmaps; without any, q3map2's default 16 Quake units, 0.41 m at convert's
+    /// scale). A quarter of it is four times as fine.
+    #[arg(long = "texel-size", value_name = "METERS")]
+    pub texel_size: Option<f32>,
     /// Skip the PNG previews.
     #[arg(long = "no-previews")]
     pub no_previews: bool,
@@ -72,6 +84,8 @@ pub fn run(a: BakeArgs) -> Result<(), String> {
         half: a.half,
         padding: a.padding.min(64),
         previews: !a.no_previews,
+        new_uvs: a.new_uvs,
+        texel_m: a.texel_size,
         backend: match a.backend.as_str() {
             "wgpu" => BackendChoice::Wgpu,
             "cpu" => BackendChoice::Cpu,
@@ -104,8 +118,24 @@ pub fn run(a: BakeArgs) -> Result<(), String> {
             eprintln!("  note: {n}");
         }
         eprintln!("relative error against the original lightmaps {:.4}; residual previews span +-{:.4} (e, luminance)", r.rel_error, r.residual_range);
+        if let Some(a) = &r.atlas {
+            eprintln!(
+                "new atlas {}x{} at {:.3} m per texel: {} charts, {} primitives, {} triangles ({} degenerate, without texels), {:.0}% used",
+                a.width,
+                a.height,
+                a.texel_m,
+                a.charts,
+                a.primitives,
+                a.triangles,
+                a.ignored_triangles,
+                100.0 * a.utilization
+            );
+        }
         for p in &r.pages {
-            eprintln!("  {} {}x{}: {} texels, residual rms {:.4} max {:.4}", p.name, p.width, p.height, p.texels, p.residual_rms, p.residual_max_abs);
+            match (p.residual_rms, p.residual_max_abs) {
+                (Some(rms), Some(mx)) => eprintln!("  {} {}x{}: {} texels, residual rms {:.4} max {:.4}", p.name, p.width, p.height, p.texels, rms, mx),
+                _ => eprintln!("  {} {}x{}: {} texels (new, no original)", p.name, p.width, p.height, p.texels),
+            }
         }
         let st: Vec<String> = r.stages.iter().map(|(n, s)| format!("{n} {s:.2}s")).collect();
         eprintln!("{} files in {} ({:.2} s: {})", r.files.len(), r.out_dir, r.seconds, st.join(", "));

@@ -110,6 +110,11 @@ pub struct RelightArgs {
     /// the model and the lightmap disagree.
     #[arg(long = "dump-rows", value_name = "rows.csv")]
     pub dump_rows: Option<PathBuf>,
+    /// Also bake the output into this folder (as `q3gltf bake OUT -o DIR` with its
+    /// defaults: relit, original and residual lightmaps as EXR and PNG, baked.glb); the
+    /// report lists the files under `bake`.
+    #[arg(long, value_name = "DIR")]
+    pub bake: Option<PathBuf>,
     /// No progress display.
     #[arg(short, long)]
     pub quiet: bool,
@@ -250,8 +255,24 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     let bars = Bars { quiet: a.quiet, bar: Default::default() };
     let rep = pipeline::run(&opts, &bars).map_err(|e| e.to_string())?;
     bars.phase_done();
+    let mut baked = None;
+    if let Some(dir) = &a.bake {
+        let b = q3gltf_relight::bake::Options {
+            input: opts.output.clone(),
+            out_dir: dir.clone(),
+            bounces: None,
+            bounce_rays: opts.bounce_rays,
+            half: false,
+            padding: 2,
+            previews: true,
+            backend: opts.backend,
+            new_uvs: false,
+            texel_m: None,
+        };
+        baked = Some(q3gltf_relight::bake::run(&b, &q3gltf_relight::bake::Quiet).map_err(|e| format!("bake: {e}"))?);
+    }
     if let Some(p) = &a.report {
-        report::write_json(&rep, p).map_err(|e| e.to_string())?;
+        report::write_json(&rep, baked.as_ref(), p).map_err(|e| e.to_string())?;
     }
     if let Some(p) = &a.plot {
         report::write_plot(&rep, p).map_err(|e| e.to_string())?;
@@ -291,5 +312,8 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
     println!("  rays      {} shadow rays, {} objective evaluations", rep.rays_traced, rep.evaluations);
+    if let Some(b) = &baked {
+        println!("  bake      {} files in {} (error {:.4}, {:.2} s)", b.files.len(), b.out_dir, b.rel_error, b.seconds);
+    }
     Ok(())
 }

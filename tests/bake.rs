@@ -270,3 +270,144 @@ fn a_relit_real_map_bakes_to_relights_own_error_on_both_backends() {
     // handful of texels, never a systematic difference.
     assert!(off * 1000 <= w * h * 3, "wgpu and cpu differ above 0.1% on {off} of {} channels (worst {worst})", w * h * 3);
 }
+
+/// The lightmap charts of a baked glTF's new atlas (image `lightmap_atlas`): for every
+/// pair of charts, no texel is read by bilinear filtering of both. A chart is a connected
+/// set of triangles of one primitive (sharing vertices, or vertices at the same atlas
+/// point); filtering at a point `q` (texel
+/// units) reads the texels whose centres lie within 1 of `q` on both axes, so a triangle
+/// reads texel `(i, j)` when it meets the open square of half-width 1 around the centre.
+/// Returns the number of charts and of texels some chart reads.
+fn atlas_charts_never_share_a_filtered_texel(glb: &Path) -> (usize, usize) {
+    let (doc, buffers, images) = gltf::import(glb).unwrap_or_else(|e| panic!("{}: {e}", glb.display()));
+    let atlas = doc.images().position(|i| i.name() == Some("lightmap_atlas")).expect("an image named lightmap_atlas");
+    let (w, h) = (images[atlas].width as usize, images[atlas].height as usize);
+    let mut owner: Vec<u32> = vec![u32::MAX; w * h];
+    let (mut charts, mut shared, mut read) = (0u32, 0usize, 0usize);
+    for mesh in doc.meshes() {
+        for prim in mesh.primitives() {
+            let Some(occ) = prim.material().occlusion_texture() else { continue };
+            if occ.texture().source().index() != atlas {
+                continue;
+            }
+            assert_eq!(occ.tex_coord(), 1);
+            let r = prim.reader(|b| Some(&buffers[b.index()]));
+            let uv: Vec<[f32; 2]> = r.read_tex_coords(1).expect("TEXCOORD_1 on a primitive of the atlas").into_f32().collect();
+            let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
+            // Charts: union-find over the triangles' vertices.
+            let mut parent: Vec<usize> = (0..uv.len()).collect();
+            fn find(p: &mut [usize], mut i: usize) -> usize {
+                while p[i] != i {
+                    p[i] = p[p[i]];
+                    i = p[i];
+                }
+                i
+            }
+            // Vertices at the same atlas point belong to one chart (charts never overlap):
+            // the input may repeat a position under several vertex indices.
+            let mut at = std::collections::HashMap::new();
+            for (i, u) in uv.iter().enumerate() {
+                let j = *at.entry(u.map(f32::to_bits)).or_insert(i);
+                let (ri, rj) = (find(&mut parent, i), find(&mut parent, j));
+                parent[ri] = rj;
+            }
+            for t in idx.chunks_exact(3) {
+                let (a, b, c) = (find(&mut parent, t[0] as usize), find(&mut parent, t[1] as usize), find(&mut parent, t[2] as usize));
+                parent[b] = a;
+                let c2 = find(&mut parent, c);
+                parent[c2] = a;
+            }
+            let mut id = std::collections::HashMap::new();
+            for t in idx.chunks_exact(3) {
+                let p = [t[0], t[1], t[2]].map(|i: u32| glam::Vec2::from(uv[i as usize]) * glam::Vec2::new(w as f32, h as f32));
+                if (p[1] - p[0]).perp_dot(p[2] - p[0]).abs() < 1e-9 {
+                    continue; // degenerate: no texels, nothing read
+                }
+                let root = find(&mut parent, t[0] as usize);
+                let chart = *id.entry(root).or_insert_with(|| {
+                    charts += 1;
+                    charts - 1
+                });
+                let lo = p.iter().fold(glam::Vec2::splat(f32::MAX), |m, v| m.min(*v));
+                let hi = p.iter().fold(glam::Vec2::splat(f32::MIN), |m, v| m.max(*v));
+                let (x0, y0) = (((lo.x - 1.5).floor().max(0.0)) as usize, ((lo.y - 1.5).floor().max(0.0)) as usize);
+                let (x1, y1) = (((hi.x + 1.5).ceil() as usize).min(w), ((hi.y + 1.5).ceil() as usize).min(h));
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        let c = glam::Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                        if !triangle_meets_square(&p, c, 1.0 - 1e-3) {
+                            continue;
+                        }
+                        let o = &mut owner[y * w + x];
+                        if *o == u32::MAX {
+                            *o = chart;
+                            read += 1;
+                        } else if *o != chart {
+                            shared += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(shared, 0, "{}: {shared} texels are read by filtering of two charts ({charts} charts)", glb.display());
+    (charts as usize, read)
+}
+
+/// Separating axes: the square's two and the triangle's three edge normals.
+fn triangle_meets_square(p: &[glam::Vec2; 3], c: glam::Vec2, half: f32) -> bool {
+    let square = [c + glam::Vec2::new(-half, -half), c + glam::Vec2::new(half, -half), c + glam::Vec2::new(half, half), c + glam::Vec2::new(-half, half)];
+    let mut axes = vec![glam::Vec2::X, glam::Vec2::Y];
+    for k in 0..3 {
+        let e = p[(k + 1) % 3] - p[k];
+        axes.push(glam::Vec2::new(-e.y, e.x));
+    }
+    axes.iter().all(|a| {
+        let (t0, t1) = p.iter().fold((f32::MAX, f32::MIN), |(l, h), v| (l.min(a.dot(*v)), h.max(a.dot(*v))));
+        let (s0, s1) = square.iter().fold((f32::MAX, f32::MIN), |(l, h), v| (l.min(a.dot(*v)), h.max(a.dot(*v))));
+        t0 < s1 && s0 < t1
+    })
+}
+
+/// A real map charted anew (`--new-uvs`, xatlas): the new atlas has the map's own texel
+/// density by default (and four times the texels at half the texel size), no two charts
+/// share a texel under bilinear filtering, and the baked glTF reads back exactly: baking
+/// it again finds its lightmap equal to the model byte for byte (residual 0, error 0).
+#[test]
+fn a_real_map_charted_anew_keeps_its_density_never_bleeds_and_reads_back_exactly() {
+    let dir = tmp("newuvs");
+    let gltf = dir.join("oa_dm1.gltf");
+    run(&["convert", "oa_dm1", "--game-dir", common::baseoa().to_str().unwrap(), "-o", gltf.to_str().unwrap(), "-q"]);
+    let bake = |input: &Path, name: &str, extra: &[&str]| -> (PathBuf, Value) {
+        let out = dir.join(name);
+        let mut args = vec!["bake", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--bounces", "0", "-q"];
+        args.extend_from_slice(extra);
+        run(&args);
+        let r = read_json(&out.join("bake.json"));
+        (out, r)
+    };
+    let (_, original) = bake(&gltf, "original", &[]);
+    let luxels = original["luxels"].as_f64().unwrap();
+    let (out, b) = bake(&gltf, "atlas", &["--new-uvs"]);
+    let a = &b["atlas"];
+    assert_eq!(b["pages"].as_array().unwrap().len(), 1, "one page, the new atlas: {}", b["pages"]);
+    assert!(b["pages"][0]["new"].as_bool().unwrap() && b["pages"][0]["residual_rms"].is_null());
+    // Measured 2026-11-23: 132669 texels against the original layout's 131246.
+    let texels = b["luxels"].as_f64().unwrap();
+    assert!((texels / luxels - 1.0).abs() < 0.05, "new atlas {texels} texels, original {luxels}");
+    assert!(a["primitives"].as_u64().unwrap() > 10 && a["charts"].as_u64().unwrap() > 100, "{a}");
+    let (charts, read) = atlas_charts_never_share_a_filtered_texel(&out.join("baked.glb"));
+    assert!(charts > 100 && read as f64 > texels, "{charts} charts read {read} texels");
+    // The baked glTF as a relight input: its lightmap is the model, byte for byte.
+    let (_, again) = bake(&out.join("baked.glb"), "again", &[]);
+    assert_eq!(again["luxels"].as_f64().unwrap(), texels);
+    assert!(again["atlas"].is_null(), "nothing left to chart: {}", again["atlas"]);
+    assert!(again["rel_error"].as_f64().unwrap() < 1e-6, "{}", again["rel_error"]);
+    assert_eq!(again["pages"][0]["residual_max_abs"].as_f64().unwrap(), 0.0);
+    // Finer: half the texel size, four times the texels.
+    let texel_m = a["texel_m"].as_f64().unwrap();
+    let (fine_out, fine) = bake(&gltf, "fine", &["--new-uvs", "--texel-size", &format!("{}", texel_m / 2.0)]);
+    let ratio = fine["luxels"].as_f64().unwrap() / texels;
+    assert!((3.6..4.4).contains(&ratio), "half the texel size gives {ratio} times the texels");
+    atlas_charts_never_share_a_filtered_texel(&fine_out.join("baked.glb"));
+}

@@ -77,9 +77,19 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     let out = dir.join("sample.relit.gltf");
     let rep = dir.join("report.json");
     let plot = dir.join("curve.png");
-    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "--plot", plot.to_str().unwrap(), "-q"]);
+    let baked = dir.join("bake");
+    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "--plot", plot.to_str().unwrap(), "--bake", baked.to_str().unwrap(), "-q"]);
     let r = report(&rep);
     let found = lights_of(&r);
+    // `--bake`: the report names the bake's files, and the bake of the written file has the
+    // error relight reported for it.
+    let files = r["bake"]["files"].as_array().expect("the report lists the bake's files");
+    assert!(files.len() >= 8 && files.iter().any(|f| f == "baked.glb"), "{files:?}");
+    for f in files {
+        assert!(baked.join(f.as_str().unwrap()).is_file(), "{f} listed, not written");
+    }
+    let (eb, er) = (r["bake"]["rel_error"].as_f64().unwrap(), r["rel_error_final"].as_f64().unwrap());
+    assert!((eb / er - 1.0).abs() < 0.05, "bake error {eb}, relight's {er}");
     // Scene diagonal of the sample, for the tolerance.
     let doc = gltf::Gltf::open(&out).expect("output parses as glTF");
     let lights: Vec<_> = doc.lights().map(|l| l.collect::<Vec<_>>()).unwrap_or_default();
@@ -93,8 +103,21 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     // graze an occluder's edge exactly, where q3map2's test and ours disagree).
     assert!(err < 0.05, "relative error {err}");
     assert!(r["iterations"].as_array().unwrap().len() > 3, "iterations are reported");
-    let png = image::open(&plot).expect("the plot is a PNG");
+    let png = image::open(&plot).expect("the plot is a PNG").to_rgb8();
     assert!(png.width() >= 600);
+    // A title (dark text across the top) and a legend: one solid swatch per phase that has
+    // iterations, in that phase's colour.
+    let dark_on_top = (0..png.width()).flat_map(|x| (0..40).map(move |y| (x, y))).filter(|&(x, y)| png.get_pixel(x, y).0[0] < 128).count();
+    assert!(dark_on_top > 500, "no title ({dark_on_top} dark pixels on top)");
+    use q3gltf_relight::report::{PHASE_COLORS, PLACEMENT_COLOR};
+    let mut series: Vec<Option<u64>> = r["iterations"].as_array().unwrap().iter().map(|i| (!i["placement"].as_bool().unwrap()).then(|| i["phase"].as_u64().unwrap())).collect();
+    series.dedup();
+    assert!(series.contains(&None) && series.contains(&Some(0)), "placement and fit iterations: {series:?}");
+    for k in series {
+        let c = k.map_or(PLACEMENT_COLOR, |k| PHASE_COLORS[k as usize % PHASE_COLORS.len()]);
+        let swatch = (0..png.width() - 20).any(|x| (60..png.height() - 4).any(|y| (0..20).all(|dx| (0..4).all(|dy| *png.get_pixel(x + dx, y + dy) == c))));
+        assert!(swatch, "no legend swatch for {k:?}");
+    }
 
     // The thesis's vertex target (lightmap resolution subdivision, mass-lumped projection):
     // hard shadow edges are blurred into the vertices, so its floor is higher (about 0.07).

@@ -13,6 +13,7 @@
 //! the numbers; [`probe`] evaluates the model at one point; [`bake`] renders a file's own
 //! lights into its lightmap layout (EXR) beside the original and the residual.
 
+pub mod atlas;
 pub mod backend;
 pub mod bake;
 pub mod error;

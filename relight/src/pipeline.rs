@@ -755,6 +755,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let phases_done = fit.phases.clone();
     // The placement's iterations (on its subsample) first, then the fit's.
     let mut history: Vec<IterRecord> = auto_stats.as_mut().map(|a| std::mem::take(&mut a.history)).unwrap_or_default();
+    history.iter_mut().for_each(|r| r.placement = true);
     history.extend(fit.history.iter().cloned());
     let evaluations = fit.evaluations;
     let rays = fit.vis.rays;

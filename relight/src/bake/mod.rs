@@ -22,7 +22,15 @@
 //!   byte agrees, signed; where the original has a channel at 255 (a lower bound) only a
 //!   shortfall counts; 0 on texels without a row;
 //! - with previews, `NAME.{relit,original,residual}.png` ([`encode`]);
+//! - `baked.glb`: the scene with the relit pages in place of its lightmaps, in the
+//!   lightmaps' own 8-bit encoding ([`crate::io::baked_gltf`]);
 //! - `bake.json`: the [`Report`].
+//!
+//! New lightmap coordinates: geometry without them (a mesh added in Blender), or all of it
+//! with [`Options::new_uvs`], is charted into one new atlas (`lightmap_atlas`, [`crate::atlas`])
+//! at [`Options::texel_m`] before the render, and the scene rendered is the one written to
+//! `baked.glb`. The atlas page has no original, so no `original`/`residual` files; the
+//! relative error counts only the pages that have one.
 //!
 //! The relative error reported is relight's own ([`crate::rows`]: the byte intervals,
 //! censored texels as lower bounds) over the lightmap texels, so it matches the error a
@@ -37,7 +45,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::io::gltf_in;
+use crate::io::{baked_gltf, gltf_in};
 use crate::model::stated;
 use crate::pipeline::{render_on, BackendChoice};
 use crate::rows::projection::CENSOR_BYTE;
@@ -58,7 +66,19 @@ pub struct Options {
     /// Write PNG previews.
     pub previews: bool,
     pub backend: BackendChoice,
+    /// Chart every lightmapped surface into a new atlas, not only those without lightmap
+    /// coordinates.
+    pub new_uvs: bool,
+    /// Texel size of a new atlas, meters; `None`: the scene's own lightmap density
+    /// ([`lightmap_texel_m`]), else q3map2's default sample size, 16 Quake units
+    /// ([`DEFAULT_SAMPLE_UNITS`]) at the scene's scale.
+    pub texel_m: Option<f32>,
 }
+
+/// q3map2's default lightmap sample size (`-samplesize`), Quake units per luxel.
+pub const DEFAULT_SAMPLE_UNITS: f32 = 16.0;
+/// Largest side of a new atlas, texels.
+pub const MAX_ATLAS_SIDE: u32 = 8192;
 
 /// One lightmap page of the bake.
 #[derive(Debug, Clone, Serialize)]
@@ -74,11 +94,13 @@ pub struct PageReport {
     pub censored: usize,
     /// Mean `e` over the covered texels, per channel.
     pub relit_mean: [f64; 3],
-    pub original_mean: [f64; 3],
+    /// The page of a new atlas: no original, no residual (the fields below are `None`).
+    pub new: bool,
+    pub original_mean: Option<[f64; 3]>,
     /// Root mean square and largest magnitude of the residual's channels over covered
     /// texels, in `e`.
-    pub residual_rms: f64,
-    pub residual_max_abs: f64,
+    pub residual_rms: Option<f64>,
+    pub residual_max_abs: Option<f64>,
 }
 
 /// What a bake made (also written as `OUTDIR/bake.json`).
@@ -100,8 +122,11 @@ pub struct Report {
     pub notes: Vec<String>,
     /// Luxel rows rendered (vertex-lit surfaces have no lightmap and are not baked).
     pub luxels: usize,
-    /// Relight's relative error of the stated model against the original lightmaps.
+    /// Relight's relative error of the stated model against the original lightmaps (pages
+    /// that have one).
     pub rel_error: f64,
+    /// The new atlas, when one was made.
+    pub atlas: Option<crate::io::baked_gltf::NewAtlas>,
     /// The residual previews' colour map spans `[-residual_range, residual_range]` in
     /// luminance of `e`.
     pub residual_range: f64,
@@ -124,6 +149,26 @@ impl Progress for Quiet {
     fn stage(&self, _: &str) {}
 }
 
+/// The texel size of a scene's lightmaps, meters: `sqrt(world area / texel area)` over
+/// its lightmapped triangles (q3map2's `-samplesize`, or a map's `_lightmapscale`, times
+/// the scale). `None` without lightmapped area.
+pub fn lightmap_texel_m(scene: &crate::scene::Scene) -> Option<f32> {
+    let m = &scene.mesh;
+    let (mut world, mut texels) = (0.0f64, 0.0f64);
+    for (t, tri) in m.triangles.iter().enumerate() {
+        let mat = &scene.materials[m.tri_material[t] as usize];
+        let Some(tex) = mat.lightmap.and_then(|i| scene.textures.get(i)).filter(|_| mat.lighting == crate::scene::Lighting::Lightmap) else { continue };
+        let [a, b, c] = tri.map(|i| m.uv1[i as usize].as_dvec2() * glam::DVec2::new(tex.width as f64, tex.height as f64));
+        let area_t = 0.5 * (b - a).perp_dot(c - a).abs();
+        if area_t.is_finite() {
+            world += m.triangle_area(t) as f64;
+            texels += area_t;
+        }
+    }
+    let s = (world / texels).sqrt();
+    (texels > 0.0 && s.is_finite() && s > 0.0).then_some(s as f32)
+}
+
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let t0 = Instant::now();
     let mut stages: Vec<(String, f64)> = Vec::new();
@@ -133,9 +178,25 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         *t = Instant::now();
     };
     progress.stage("read");
-    let mut scene = gltf_in::read(&opts.input)?;
-    let st = stated::stated(&mut scene, opts.bounces);
+    let scene0 = gltf_in::read(&opts.input)?;
     done("read", &mut t);
+    let texel_m = opts.texel_m.or_else(|| lightmap_texel_m(&scene0)).unwrap_or(DEFAULT_SAMPLE_UNITS * scene0.units_m);
+    if !(texel_m.is_finite() && texel_m > 0.0) {
+        return Err(Error::Usage(format!("texel size {texel_m} m is not positive")));
+    }
+    let plan = baked_gltf::Plan { all: opts.new_uvs, atlas: crate::atlas::Options { texels_per_m: 1.0 / texel_m, padding: opts.padding.max(1), max_size: MAX_ATLAS_SIDE } };
+    progress.stage("atlas");
+    let mut baked = baked_gltf::relayout(&opts.input, &scene0, &plan)?;
+    let mut scene = match &baked.atlas {
+        Some(_) => gltf_in::read_slice(&baked.to_glb()?, None, &opts.input, &gltf_in::Limits::default())?,
+        None => scene0,
+    };
+    let mut notes = std::mem::take(&mut baked.notes);
+    // Scene textures of the new atlas (no original).
+    let new_textures: Vec<usize> = baked.atlas.as_ref().map_or(Vec::new(), |a| a.materials.iter().filter_map(|&m| scene.materials.get(m).and_then(|m| m.lightmap)).collect());
+    done("atlas", &mut t);
+    let st = stated::stated(&mut scene, opts.bounces);
+    notes.extend(st.notes.iter().cloned());
 
     progress.stage("render");
     let r = render_on(&scene, &st.model, st.bounces, opts.bounce_rays, opts.backend)?;
@@ -189,11 +250,18 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let mut relit_pages = page::splat(rows, &relit, &scene.textures);
     let mut original_pages = page::splat(rows, &original, &scene.textures);
     let residual_pages = page::splat(rows, &residual, &scene.textures);
-    let rel_error = rows.rel_error(&r.radiance);
+    let is_new = |tex: usize| new_textures.contains(&tex);
+    let rel_error = if new_textures.is_empty() {
+        rows.rel_error(&r.radiance)
+    } else {
+        let keep: Vec<usize> = (0..rows.len()).filter(|&i| !is_new(rows.texel[i][0] as usize)).collect();
+        let radiance: Vec<[f64; 3]> = keep.iter().map(|&i| r.radiance[i]).collect();
+        rows.subset(&keep).rel_error(&radiance)
+    };
 
     // One colour scale for every residual preview: the 99th percentile of |luminance|,
     // at least one byte of the default encoding.
-    let mut mags: Vec<f32> = residual_pages.iter().flat_map(|p| p.rgb.iter().zip(&p.covered).filter(|(_, c)| **c).map(|(v, _)| encode::luminance(*v).abs())).collect();
+    let mut mags: Vec<f32> = residual_pages.iter().filter(|p| !is_new(p.texture)).flat_map(|p| p.rgb.iter().zip(&p.covered).filter(|(_, c)| **c).map(|(v, _)| encode::luminance(*v).abs())).collect();
     mags.sort_by(f32::total_cmp);
     let p99 = mags.get(((mags.len() as f64 * 0.99) as usize).min(mags.len().saturating_sub(1))).copied().unwrap_or(0.0);
     let residual_range = (p99 as f64).max(4.0 / 255.0);
@@ -222,17 +290,19 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
                 n += 3;
             }
         }
+        let new = is_new(rp.texture);
         pages.push(PageReport {
-            name,
+            name: if new { "lightmap_atlas".into() } else { name },
             texture: rp.texture,
             width: rp.width,
             height: rp.height,
             texels: rp.texels_covered(),
-            censored: censored_on[rp.texture],
+            censored: if new { 0 } else { censored_on[rp.texture] },
             relit_mean: mean(rp),
-            original_mean: mean(op),
-            residual_rms: (sq / n.max(1) as f64).sqrt(),
-            residual_max_abs: mx,
+            new,
+            original_mean: (!new).then(|| mean(op)),
+            residual_rms: (!new).then(|| (sq / n.max(1) as f64).sqrt()),
+            residual_max_abs: (!new).then_some(mx),
         });
     }
     for p in relit_pages.iter_mut().chain(original_pages.iter_mut()) {
@@ -251,16 +321,34 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         files.push(name);
         Ok(())
     };
+    // The lightmap images of the baked glTF: each page in its material's encoding.
+    let mut page_png: Vec<Option<Vec<u8>>> = vec![None; pages.len()];
+    for (material, image) in baked.lightmap_images() {
+        let Some(m) = scene.materials.get(material) else { continue };
+        let Some(k) = m.lightmap.and_then(|t| pages.iter().position(|p| p.texture == t)) else { continue };
+        let png = match &page_png[k] {
+            Some(png) => png.clone(),
+            None => encode::preview(&relit_pages[k], m.overbright_bits)?,
+        };
+        baked.set_image(image, &png, m.overbright_bits);
+        page_png[k] = Some(png);
+    }
     for (k, p) in pages.iter().enumerate() {
         let ob = scene.materials.iter().find(|m| m.lightmap == Some(p.texture)).map_or(2, |m| m.overbright_bits);
-        for (kind, pg) in [("relit", &relit_pages[k]), ("original", &original_pages[k]), ("residual", &residual_pages[k])] {
+        let kinds: &[(&str, &Page)] = if p.new { &[("relit", &relit_pages[k])] } else { &[("relit", &relit_pages[k]), ("original", &original_pages[k]), ("residual", &residual_pages[k])] };
+        for &(kind, pg) in kinds {
             add(&mut staged, format!("{}.{kind}.exr", p.name), encode::exr(pg, opts.half)?)?;
             if opts.previews {
-                let png = if kind == "residual" { encode::residual_preview(pg, residual_range as f32)? } else { encode::preview(pg, ob)? };
+                let png = match (kind, &page_png[k]) {
+                    ("residual", _) => encode::residual_preview(pg, residual_range as f32)?,
+                    ("relit", Some(png)) => png.clone(),
+                    _ => encode::preview(pg, ob)?,
+                };
                 add(&mut staged, format!("{}.{kind}.png", p.name), png)?;
             }
         }
     }
+    add(&mut staged, "baked.glb".into(), baked.to_glb()?)?;
     let m = &st.model;
     let mut report = Report {
         input: opts.input.display().to_string(),
@@ -275,9 +363,10 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         bounces: if m.bounce.is_some() { st.bounces } else { 0 },
         dirt: m.dirt,
         filter: m.filter,
-        notes: st.notes.clone(),
+        notes,
         luxels,
         rel_error,
+        atlas: baked.atlas.clone(),
         residual_range,
         pages,
         files,

@@ -53,6 +53,9 @@ pub struct IterRecord {
     pub objective: f64,
     pub rel_error: f64,
     pub lights: usize,
+    /// An iteration of the greedy placement's fits (on its subsample, before the main
+    /// fit; `phase` then counts the placement's own phases).
+    pub placement: bool,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -272,7 +275,7 @@ impl<'a> Fitter<'a> {
             };
             let mut observe = |it: usize, f: f64| -> bool {
                 let mut me = this.borrow_mut();
-                let rec = IterRecord { time_s: me.start.elapsed().as_secs_f64(), phase: phase_no, iteration: it, objective: f, rel_error: last_err.get(), lights: me.model.lights.len() };
+                let rec = IterRecord { time_s: me.start.elapsed().as_secs_f64(), phase: phase_no, iteration: it, objective: f, rel_error: last_err.get(), lights: me.model.lights.len(), placement: false };
                 if let Some(cb) = me.on_iter.as_mut() {
                     cb(&rec);
                 }

@@ -123,7 +123,7 @@ pub fn relative_uri(uri: &str) -> std::result::Result<String, &'static str> {
 /// Where a URI points, after the safety rules: data URIs are decoded; relative paths must
 /// stay inside the glTF's directory (no `..`, no absolute path, no drive letter, no NUL,
 /// no other scheme), and are only read when the input came from a directory.
-fn read_uri(uri: &str, base: Option<&Path>, shown: &Path, what: &str) -> Result<Vec<u8>> {
+pub(crate) fn read_uri(uri: &str, base: Option<&Path>, shown: &Path, what: &str) -> Result<Vec<u8>> {
     if let Some(rest) = uri.strip_prefix("data:") {
         let (_, data) = rest.split_once(";base64,").ok_or_else(|| Error::input(shown, format!("{what}: data URI is not base64")))?;
         return base64_decode(data).ok_or_else(|| Error::input(shown, format!("{what}: invalid base64 in data URI")));
@@ -149,7 +149,7 @@ fn view_range(view: &gltf::buffer::View, buffers: &[Vec<u8>]) -> Option<std::ops
 
 /// Checks that an accessor's items lie inside its buffer view, and that its count is
 /// sane, so the `gltf` reader neither overflows nor allocates from a hostile count.
-fn check_accessor(a: &gltf::Accessor, buffers: &[Vec<u8>], max_elements: usize) -> std::result::Result<(), String> {
+pub(crate) fn check_accessor(a: &gltf::Accessor, buffers: &[Vec<u8>], max_elements: usize) -> std::result::Result<(), String> {
     let count = a.count();
     if count == 0 || count > max_elements {
         return Err(format!("accessor {}: count {count} (must be 1..={max_elements})", a.index()));
@@ -257,14 +257,9 @@ pub fn read(path: &Path) -> Result<Scene> {
     read_slice(&bytes, Some(base), path, &Limits::default())
 }
 
-/// Reads a `.gltf` or `.glb` held in memory and flattens the default scene. External
-/// buffers and images are read from `base` (the file's directory); with `None` only data
-/// URIs and the GLB chunk are accepted. `shown` names the input in errors. Hostile input
-/// gives an error, never a panic or an unbounded allocation: URIs may not leave `base`,
-/// every accessor is checked against its buffer view, counts and images are bounded by
-/// `limits`.
-pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limits) -> Result<Scene> {
-    let path = shown;
+/// The typed glTF of `bytes` and its GLB binary chunk, validated, without the panics gltf
+/// 1.4.1 has on hostile input.
+pub(crate) fn document(bytes: &[u8], path: &Path) -> Result<(gltf::Document, Option<Vec<u8>>)> {
     // gltf 1.4.1 subtracts the 12-byte header from the declared GLB length unchecked
     // (an overflow panic with overflow checks on: found by the gltf_in fuzz target).
     if let Some(h) = bytes.strip_prefix(b"glTF").and_then(|r| r.get(4..8)) {
@@ -273,7 +268,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             return Err(Error::input(path, format!("GLB header declares {declared} bytes, less than the header itself")));
         }
     }
-    let gltf::Gltf { document: doc, mut blob } = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| Error::input(path, e.to_string()))?;
+    let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| Error::input(path, e.to_string()))?;
     // gltf-json 1.4.1's validation indexes the POSITION accessor before checking that it
     // exists (a panic, found by the gltf_in fuzz target): check that first, then validate.
     let root = doc.into_json();
@@ -285,6 +280,18 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         }
     }
     let doc = gltf::Document::from_json(root).map_err(|e| Error::input(path, e.to_string()))?;
+    Ok((doc, blob))
+}
+
+/// Reads a `.gltf` or `.glb` held in memory and flattens the default scene. External
+/// buffers and images are read from `base` (the file's directory); with `None` only data
+/// URIs and the GLB chunk are accepted. `shown` names the input in errors. Hostile input
+/// gives an error, never a panic or an unbounded allocation: URIs may not leave `base`,
+/// every accessor is checked against its buffer view, counts and images are bounded by
+/// `limits`.
+pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limits) -> Result<Scene> {
+    let path = shown;
+    let (doc, mut blob) = document(bytes, path)?;
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for b in doc.buffers() {
         let what = format!("buffer {}", b.index());

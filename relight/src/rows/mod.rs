@@ -155,6 +155,16 @@ impl Rows {
         }
     }
 
+    /// The rows `keep` (in that order), with their own error denominator.
+    pub fn subset(&self, keep: &[usize]) -> Rows {
+        let mut r = Rows { sampling: self.sampling, ..Rows::default() };
+        for &i in keep {
+            r.push(self.row(i));
+        }
+        r.finish();
+        r
+    }
+
     /// Completes rows pushed one by one (computes the error's denominator).
     pub fn finish(&mut self) {
         self.norm2 = (0..self.len())
