@@ -31,7 +31,7 @@ for scene in sample oa_dm1; do
       python3 - "$dir/bake.json" "$scene" "$name" >> "$table" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1])); st = dict(r["stages"])
-err = f"{r['rel_error']:.4f}" if not r.get("atlas") else "(new)"
+err = f"{r['rel_error']:.4f}" if r.get("rel_error") is not None else "(new)"
 print(f"| {sys.argv[2]} | {sys.argv[3]} | {r['backend']} | {r['luxels']} | {r['lights']} | {r['bounces']} | {err} | {r['seconds']:.2f} | {st.get('atlas', 0):.2f} | {st.get('render', 0):.2f} |")
 PY
     done

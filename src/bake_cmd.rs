@@ -117,7 +117,10 @@ pub fn run(a: BakeArgs) -> Result<(), String> {
         for n in &r.notes {
             eprintln!("  note: {n}");
         }
-        eprintln!("relative error against the original lightmaps {:.4}; residual previews span +-{:.4} (e, luminance)", r.rel_error, r.residual_range);
+        match r.rel_error {
+            Some(e) => eprintln!("relative error against the original lightmaps {e:.4}; residual previews span +-{:.4} (e, luminance)", r.residual_range),
+            None => eprintln!("no original lightmap to compare with (every page is new)"),
+        }
         if let Some(a) = &r.atlas {
             eprintln!(
                 "new atlas {}x{} at {:.3} m per texel: {} charts, {} primitives, {} triangles ({} degenerate, without texels), {:.0}% used",

@@ -313,7 +313,7 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
     println!("  rays      {} shadow rays, {} objective evaluations", rep.rays_traced, rep.evaluations);
     if let Some(b) = &baked {
-        println!("  bake      {} files in {} (error {:.4}, {:.2} s)", b.files.len(), b.out_dir, b.rel_error, b.seconds);
+        println!("  bake      {} files in {} (error {:.4}, {:.2} s)", b.files.len(), b.out_dir, b.rel_error.unwrap_or(f64::NAN), b.seconds);
     }
     Ok(())
 }

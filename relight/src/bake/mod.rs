@@ -123,8 +123,8 @@ pub struct Report {
     /// Luxel rows rendered (vertex-lit surfaces have no lightmap and are not baked).
     pub luxels: usize,
     /// Relight's relative error of the stated model against the original lightmaps (pages
-    /// that have one).
-    pub rel_error: f64,
+    /// that have one; `None` when every page is new).
+    pub rel_error: Option<f64>,
     /// The new atlas, when one was made.
     pub atlas: Option<crate::io::baked_gltf::NewAtlas>,
     /// The residual previews' colour map spans `[-residual_range, residual_range]` in
@@ -252,11 +252,11 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let residual_pages = page::splat(rows, &residual, &scene.textures);
     let is_new = |tex: usize| new_textures.contains(&tex);
     let rel_error = if new_textures.is_empty() {
-        rows.rel_error(&r.radiance)
+        Some(rows.rel_error(&r.radiance))
     } else {
         let keep: Vec<usize> = (0..rows.len()).filter(|&i| !is_new(rows.texel[i][0] as usize)).collect();
         let radiance: Vec<[f64; 3]> = keep.iter().map(|&i| r.radiance[i]).collect();
-        rows.subset(&keep).rel_error(&radiance)
+        (!keep.is_empty()).then(|| rows.subset(&keep).rel_error(&radiance))
     };
 
     // One colour scale for every residual preview: the 99th percentile of |luminance|,
@@ -322,16 +322,17 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         Ok(())
     };
     // The lightmap images of the baked glTF: each page in its material's encoding.
-    let mut page_png: Vec<Option<Vec<u8>>> = vec![None; pages.len()];
+    // A page is encoded once, with the overbright bits of the first material that shows
+    // it; every material showing it is told those bits.
+    let mut page_png: Vec<Option<(Vec<u8>, u32)>> = vec![None; pages.len()];
     for (material, image) in baked.lightmap_images() {
         let Some(m) = scene.materials.get(material) else { continue };
         let Some(k) = m.lightmap.and_then(|t| pages.iter().position(|p| p.texture == t)) else { continue };
-        let png = match &page_png[k] {
-            Some(png) => png.clone(),
-            None => encode::preview(&relit_pages[k], m.overbright_bits)?,
-        };
-        baked.set_image(image, &png, m.overbright_bits);
-        page_png[k] = Some(png);
+        if page_png[k].is_none() {
+            page_png[k] = Some((encode::preview(&relit_pages[k], m.overbright_bits)?, m.overbright_bits));
+        }
+        let (png, ob) = page_png[k].as_ref().unwrap();
+        baked.set_image(image, png, *ob);
     }
     for (k, p) in pages.iter().enumerate() {
         let ob = scene.materials.iter().find(|m| m.lightmap == Some(p.texture)).map_or(2, |m| m.overbright_bits);
@@ -341,7 +342,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             if opts.previews {
                 let png = match (kind, &page_png[k]) {
                     ("residual", _) => encode::residual_preview(pg, residual_range as f32)?,
-                    ("relit", Some(png)) => png.clone(),
+                    ("relit", Some((png, _))) => png.clone(),
                     _ => encode::preview(pg, ob)?,
                 };
                 add(&mut staged, format!("{}.{kind}.png", p.name), png)?;

@@ -110,7 +110,7 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
 
     let bad = |m: String| Error::input(input, m);
     let text = serde_json::to_vec(&rl.json).map_err(|e| bad(format!("JSON: {e}")))?;
-    let (doc, _) = crate::io::gltf_in::document(&glb(&text, Some(&rl.bin)), input)?;
+    let (doc, _) = crate::io::gltf_in::document(&glb(&text, Some(&rl.bin))?, input)?;
     // Every accessor inside its view, before the gltf reader touches one.
     let buffers = [std::mem::take(&mut rl.bin)];
     let checked = doc.accessors().try_for_each(|a| crate::io::gltf_in::check_accessor(&a, &buffers, crate::io::gltf_in::MAX_ELEMENTS));
@@ -131,9 +131,14 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
     let mut notes = Vec::new();
     let scene_root = doc.default_scene().or_else(|| doc.scenes().next());
     let mut stack: Vec<(gltf::Node, DMat4, bool, usize)> = scene_root.map(|s| s.nodes().map(|n| (n, DMat4::IDENTITY, false, 0)).collect()).unwrap_or_default();
+    // A node reached twice (listed under two parents, which glTF forbids) is taken once.
+    let mut visited = HashSet::new();
     while let Some((node, parent, under_sky, depth)) = stack.pop() {
         if depth > 256 {
             return Err(bad("node hierarchy deeper than 256 (a cycle?)".into()));
+        }
+        if !visited.insert(node.index()) {
+            continue;
         }
         let world = parent * DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(f64::from)));
         let sky = under_sky || node.name().is_some_and(|n| n == "sky" || n.strip_prefix("sky.").is_some_and(|s| s.chars().all(|c| c.is_ascii_digit())));
@@ -158,12 +163,17 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
                     Lighting::Vertex => false,
                 };
             let compressed = rl.json.pointer(&format!("/meshes/{}/primitives/{}/extensions", mesh.index(), prim.index())).and_then(Value::as_object).is_some_and(|o| !o.is_empty());
+            let instanced = rl.json.pointer(&format!("/nodes/{}/extensions/EXT_mesh_gpu_instancing", node.index())).is_some();
             if wanted && prim.mode() != gltf::mesh::Mode::Triangles {
                 notes.push(format!("{}: not triangles, left without lightmap", what()));
             } else if wanted && node.skin().is_some() {
                 notes.push(format!("{}: skinned, left without lightmap", what()));
+            } else if wanted && instanced {
+                notes.push(format!("{}: GPU-instanced node, left without lightmap", what()));
             } else if wanted && compressed {
                 notes.push(format!("{}: has primitive extensions (compression?), left without lightmap", what()));
+            } else if let Some(why) = wanted.then(|| ungatherable(&rl.json, mesh.index(), prim.index())).flatten() {
+                notes.push(format!("{}: {why}, left without lightmap", what()));
             } else if wanted && prim.get(&gltf::Semantic::Positions).is_some() {
                 jobs.push(Job { node: node.index(), mesh: mesh.index(), prim: prim.index(), world });
                 continue;
@@ -205,19 +215,22 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
     let charted = atlas::chart(&inputs, &plan.atlas).map_err(|m| Error::unsupported(input, format!("lightmap atlas: {m}")))?;
     drop(inputs);
 
-    // One mesh per instance: a mesh used by a second node is copied for it.
+    // One mesh per instance: a mesh that any other node (charted or not, in any scene)
+    // also uses is copied for each charted node.
+    let mut users: HashMap<usize, usize> = HashMap::new();
+    for n in rl.json.get("nodes").and_then(Value::as_array).into_iter().flatten() {
+        if let Some(m) = n.get("mesh").and_then(Value::as_u64) {
+            *users.entry(m as usize).or_default() += 1;
+        }
+    }
     let mut mesh_of: HashMap<(usize, usize), usize> = HashMap::new();
-    let mut owner: HashMap<usize, usize> = HashMap::new();
     for j in &jobs {
         if mesh_of.contains_key(&(j.node, j.mesh)) {
             continue;
         }
-        let m = match owner.get(&j.mesh) {
-            None => {
-                owner.insert(j.mesh, j.node);
-                j.mesh
-            }
-            Some(_) => {
+        let m = match users.get(&j.mesh).copied().unwrap_or(0) {
+            0 | 1 => j.mesh,
+            _ => {
                 let copy = rl.json["meshes"][j.mesh].clone();
                 let meshes = rl.json["meshes"].as_array_mut().ok_or_else(|| bad("meshes is not an array".into()))?;
                 meshes.push(copy);
@@ -263,7 +276,7 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
                 let mut nt = serde_json::Map::new();
                 for (name, acc) in t.as_object().into_iter().flatten() {
                     let a = acc.as_u64().ok_or_else(|| bad(format!("mesh {m}: morph target {name} is not an index")))? as usize;
-                    nt.insert(name.clone(), json!(rl.gather(a, &uv.xref, false).map_err(|e| bad(format!("mesh {m} morph target {name}: {e}")))?));
+                    nt.insert(name.clone(), json!(rl.gather(a, &uv.xref, name == "POSITION").map_err(|e| bad(format!("mesh {m} morph target {name}: {e}")))?));
                 }
                 new_targets.push(Value::Object(nt));
             }
@@ -297,8 +310,8 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
                 };
                 let m = &mut rl.json["materials"][b];
                 m["occlusionTexture"] = json!({ "index": texture, "texCoord": 1 });
-                if let Some(moz) = m.pointer_mut("/extensions/MOZ_lightmap") {
-                    moz["index"] = json!(texture);
+                if let Some(moz) = m.pointer_mut("/extensions/MOZ_lightmap").and_then(Value::as_object_mut) {
+                    moz.insert("index".into(), json!(texture));
                 }
                 if !m.get("extras").is_some_and(Value::is_object) {
                     m["extras"] = json!({});
@@ -329,6 +342,31 @@ fn relayout_container(c: Container, input: &Path, dir: Option<&Path>, scene: &Sc
         materials: baked_material.values().copied().collect(),
     });
     Ok(rl)
+}
+
+/// Why a primitive's vertices cannot be gathered into new accessors, if they cannot: a
+/// sparse accessor, an attribute that is not SCALAR to VEC4, an index count that is not
+/// a triangle list.
+fn ungatherable(json: &Value, mesh: usize, prim: usize) -> Option<&'static str> {
+    let p = json.pointer(&format!("/meshes/{mesh}/primitives/{prim}"))?;
+    let mut accs: Vec<&Value> = p.get("attributes").and_then(Value::as_object).into_iter().flatten().map(|(_, a)| a).collect();
+    for t in p.get("targets").and_then(Value::as_array).into_iter().flatten() {
+        accs.extend(t.as_object().into_iter().flatten().map(|(_, a)| a));
+    }
+    let acc = |v: &Value| v.as_u64().and_then(|i| json.pointer(&format!("/accessors/{i}")));
+    for a in accs.into_iter().filter_map(acc) {
+        if a.get("sparse").is_some() {
+            return Some("a sparse accessor");
+        }
+        if a.get("type").and_then(Value::as_str).and_then(component_count).is_none() {
+            return Some("an attribute that is not SCALAR to VEC4");
+        }
+    }
+    let count = match p.get("indices") {
+        Some(i) => acc(i)?.get("count")?.as_u64()?,
+        None => acc(p.pointer("/attributes/POSITION")?)?.get("count")?.as_u64()?,
+    };
+    (count % 3 != 0).then_some("an index count that is not a triangle list")
 }
 
 /// Appends `v` to the array `key` of the root (created if missing); its index.
@@ -394,11 +432,12 @@ impl Relayout {
         let users: Vec<usize> = self.lightmap_images().into_iter().filter(|&(_, i)| i == image).map(|(m, _)| m).collect();
         for m in users {
             let mat = &mut self.json["materials"][m];
+            if !mat.get("extras").is_some_and(Value::is_object) {
+                mat["extras"] = json!({});
+            }
             if let Some(ex) = mat.get_mut("extras").and_then(Value::as_object_mut) {
                 ex.remove("q3_lightmap_gamma");
-                if ex.contains_key("q3_overbright_bits") {
-                    ex.insert("q3_overbright_bits".into(), json!(overbright_bits));
-                }
+                ex.insert("q3_overbright_bits".into(), json!(overbright_bits));
             }
         }
     }
@@ -408,7 +447,7 @@ impl Relayout {
         let mut json = self.json.clone();
         let bin = compact(&mut json, &self.bin);
         let text = serde_json::to_vec(&json).map_err(|e| Error::Usage(format!("JSON: {e}")))?;
-        Ok(glb(&text, Some(&bin)))
+        glb(&text, (!bin.is_empty()).then_some(&bin[..]))
     }
 
     fn use_extension(&mut self, name: &str) {
@@ -520,14 +559,42 @@ impl Relayout {
     }
 }
 
+/// Extensions known not to refer to accessors or buffer views (materials, textures,
+/// lights): with only these in the file, compaction sees every reference.
+fn refers_to_no_data(name: &str) -> bool {
+    name.starts_with("KHR_materials_")
+        || matches!(name, "KHR_lights_punctual" | "KHR_texture_transform" | "KHR_mesh_quantization" | "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" | "MOZ_lightmap")
+}
+
+/// Every extension named anywhere in the tree (`extensionsUsed` and the keys of every
+/// `extensions` object, declared or not).
+fn extension_names(v: &Value, out: &mut HashSet<String>) {
+    match v {
+        Value::Object(o) => {
+            for (k, x) in o {
+                if k == "extensions" {
+                    if let Some(e) = x.as_object() {
+                        out.extend(e.keys().cloned());
+                    }
+                }
+                if k == "extensionsUsed" || k == "extensionsRequired" {
+                    out.extend(x.as_array().into_iter().flatten().filter_map(Value::as_str).map(str::to_string));
+                }
+                extension_names(x, out);
+            }
+        }
+        Value::Array(a) => a.iter().for_each(|x| extension_names(x, out)),
+        _ => {}
+    }
+}
+
 /// Drops accessors and buffer views nothing refers to, and packs the used views into a
-/// new buffer (4-byte aligned). Left as it is when an extension that may refer to them
-/// is in use (compression, instancing).
+/// new buffer (4-byte aligned). Left as it is when any extension in the file might refer
+/// to them (only those of [`refers_to_no_data`] are known not to).
 fn compact(json: &mut Value, bin: &[u8]) -> Vec<u8> {
-    let risky = json.get("extensionsUsed").and_then(Value::as_array).is_some_and(|u| {
-        u.iter().filter_map(Value::as_str).any(|e| e.contains("draco") || e.contains("meshopt") || e.contains("instancing") || e.contains("compression"))
-    });
-    if risky {
+    let mut names = HashSet::new();
+    extension_names(json, &mut names);
+    if !names.iter().all(|n| refers_to_no_data(n)) {
         return bin.to_vec();
     }
     let idx = |v: &Value| v.as_u64().map(|i| i as usize);
@@ -653,11 +720,124 @@ fn compact(json: &mut Value, bin: &[u8]) -> Vec<u8> {
             *v = json!(n);
         }
     });
-    if !views.is_empty() {
-        json["bufferViews"] = Value::Array(new_views);
+    let root = json.as_object_mut().expect("the root is an object (checked on reading)");
+    // glTF forbids empty arrays and empty buffers.
+    if new_views.is_empty() {
+        root.remove("bufferViews");
+    } else {
+        root.insert("bufferViews".into(), Value::Array(new_views));
     }
-    if let Some(b) = json.get_mut("buffers").and_then(|b| b.get_mut(0)) {
-        b["byteLength"] = json!(out.len());
+    if root.get("accessors").and_then(Value::as_array).is_some_and(Vec::is_empty) {
+        root.remove("accessors");
+    }
+    if out.is_empty() && !root.contains_key("bufferViews") {
+        root.remove("buffers");
+    } else if let Some(b) = root.get_mut("buffers").and_then(|b| b.get_mut(0)).and_then(Value::as_object_mut) {
+        b.insert("byteLength".into(), json!(out.len()));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::gltf_in::{read_slice, Limits};
+
+    /// A 2 m quad (positions, normals, u16 indices) in a GLB with `extra` applied to its
+    /// JSON: mesh 0 has one primitive without material and without TEXCOORD_1.
+    fn quad_glb(extra: impl FnOnce(&mut Value)) -> Vec<u8> {
+        let pos: [[f32; 3]; 4] = [[-1.0, 0.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0]];
+        let nrm = [[0.0f32, 1.0, 0.0]; 4];
+        let idx: [u16; 6] = [0, 1, 2, 0, 2, 3];
+        let mut bin: Vec<u8> = Vec::new();
+        bin.extend_from_slice(bytemuck::cast_slice(&pos));
+        bin.extend_from_slice(bytemuck::cast_slice(&nrm));
+        bin.extend_from_slice(bytemuck::cast_slice(&idx));
+        bin.extend_from_slice(&[0, 0]);
+        let mut json = json!({
+            "asset": { "version": "2.0" },
+            "buffers": [{ "byteLength": bin.len() }],
+            "bufferViews": [
+                { "buffer": 0, "byteOffset": 0, "byteLength": 48 },
+                { "buffer": 0, "byteOffset": 48, "byteLength": 48 },
+                { "buffer": 0, "byteOffset": 96, "byteLength": 12 },
+            ],
+            "accessors": [
+                { "bufferView": 0, "componentType": FLOAT, "count": 4, "type": "VEC3", "min": [-1.0, 0.0, -1.0], "max": [1.0, 0.0, 1.0] },
+                { "bufferView": 1, "componentType": FLOAT, "count": 4, "type": "VEC3" },
+                { "bufferView": 2, "componentType": UNSIGNED_SHORT, "count": 6, "type": "SCALAR" },
+            ],
+            "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0, "NORMAL": 1 }, "indices": 2 }] }],
+            "nodes": [{ "mesh": 0, "name": "a" }, { "mesh": 0, "name": "b", "translation": [5.0, 0.0, 0.0] }],
+            "scenes": [{ "nodes": [0, 1] }],
+            "scene": 0,
+        });
+        extra(&mut json);
+        glb(&serde_json::to_vec(&json).unwrap(), Some(&bin)).unwrap()
+    }
+
+    fn plan() -> Plan {
+        Plan { all: false, atlas: atlas::Options { texels_per_m: 8.0, padding: 1, max_size: 1024 } }
+    }
+
+    fn relaid(bytes: &[u8]) -> (Relayout, Vec<u8>, Scene) {
+        let shown = Path::new("test.glb");
+        let scene = read_slice(bytes, None, shown, &Limits::default()).unwrap();
+        let rl = relayout_bytes(bytes, shown, &scene, &plan()).unwrap();
+        let out = rl.to_glb().unwrap();
+        let again = read_slice(&out, None, shown, &Limits::default()).unwrap();
+        (rl, out, again)
+    }
+
+    #[test]
+    fn an_instanced_mesh_gets_its_own_charts_per_node() {
+        let (rl, out, scene) = relaid(&quad_glb(|_| {}));
+        let a = rl.atlas.as_ref().expect("both quads charted");
+        assert_eq!((a.primitives, a.triangles), (2, 4));
+        let c = parse_container(&out, Path::new("out.glb")).unwrap();
+        let (m0, m1) = (c.json["nodes"][0]["mesh"].as_u64().unwrap(), c.json["nodes"][1]["mesh"].as_u64().unwrap());
+        assert_ne!(m0, m1, "the second node got a copy of the mesh");
+        // Both quads lightmapped, on the same atlas, in different places: no texel is
+        // shared (each quad's UV box is disjoint from the other's).
+        assert_eq!(scene.mesh.triangles.len(), 4);
+        let lm: Vec<_> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].lightmap).collect();
+        assert!(lm.iter().all(|l| l.is_some() && *l == lm[0]), "{lm:?}");
+        let boxes: Vec<(glam::Vec2, glam::Vec2)> = [0usize, 2]
+            .iter()
+            .map(|&t| {
+                let v: Vec<glam::Vec2> = scene.mesh.triangles[t..t + 2].iter().flatten().map(|&i| scene.mesh.uv1[i as usize]).collect();
+                (v.iter().fold(glam::Vec2::MAX, |m, p| m.min(*p)), v.iter().fold(glam::Vec2::MIN, |m, p| m.max(*p)))
+            })
+            .collect();
+        let overlap = (boxes[0].0.cmplt(boxes[1].1) & boxes[1].0.cmplt(boxes[0].1)).all();
+        assert!(!overlap, "the two quads share atlas space: {boxes:?}");
+        // Every accessor left is used, and no array is empty.
+        let accs = c.json["accessors"].as_array().unwrap().len();
+        let used: HashSet<u64> = c.json["meshes"].as_array().unwrap().iter().flat_map(|m| m["primitives"].as_array().unwrap()).flat_map(|p| p["attributes"].as_object().unwrap().values().chain(std::iter::once(&p["indices"]))).filter_map(Value::as_u64).collect();
+        assert_eq!(used.len(), accs, "unreferenced accessors were kept");
+    }
+
+    #[test]
+    fn primitives_that_cannot_be_gathered_are_left_alone_with_a_note() {
+        // A sparse accessor on the second node's own mesh, and a malformed MOZ_lightmap.
+        let bytes = quad_glb(|j| {
+            j["meshes"].as_array_mut().unwrap().push(json!({ "primitives": [{ "attributes": { "POSITION": 3, "NORMAL": 1 }, "indices": 2, "material": 0 }] }));
+            j["accessors"].as_array_mut().unwrap().push(json!({ "bufferView": 0, "componentType": FLOAT, "count": 4, "type": "VEC3", "min": [-1.0, 0.0, -1.0], "max": [1.0, 0.0, 1.0],
+                "sparse": { "count": 1, "indices": { "bufferView": 2, "componentType": UNSIGNED_SHORT }, "values": { "bufferView": 1 } } }));
+            j["nodes"][1]["mesh"] = json!(1);
+            j["materials"] = json!([{ "name": "m", "extensions": { "MOZ_lightmap": 3 } }]);
+            j["meshes"][0]["primitives"][0]["material"] = json!(0);
+        });
+        let (rl, out, scene) = relaid(&bytes);
+        assert!(rl.notes.iter().any(|n| n.contains("sparse")), "{:?}", rl.notes);
+        assert_eq!(rl.atlas.as_ref().unwrap().primitives, 1);
+        assert_eq!(scene.mesh.triangles.len(), 4);
+        // The material both primitives used is copied for the charted one; the kept one
+        // still shows the original, without a lightmap.
+        let c = parse_container(&out, Path::new("out.glb")).unwrap();
+        let names: Vec<&str> = c.json["materials"].as_array().unwrap().iter().map(|m| m["name"].as_str().unwrap()).collect();
+        assert_eq!(names, ["m", "m (baked)"]);
+        assert!(c.json["materials"][0].get("occlusionTexture").is_none());
+        assert_eq!(c.json["materials"][1]["occlusionTexture"]["texCoord"], 1);
+    }
 }

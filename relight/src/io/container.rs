@@ -118,7 +118,8 @@ pub fn embed_resources(json: &mut Value, bin: &mut Option<Vec<u8>>, input: &Path
     if buffers.is_empty() {
         buffers.push(json!({}));
     }
-    buffers[0]["byteLength"] = json!(data.len());
+    let Some(b0) = buffers[0].as_object_mut() else { return Err(Error::input(input, "buffer 0 is not an object")) };
+    b0.insert("byteLength".into(), json!(data.len()));
     *bin = Some(data);
     Ok(())
 }
@@ -140,11 +141,15 @@ pub fn copy_resources(json: &Value, input: &Path, in_dir: &Path, out_dir: &Path,
     Ok(())
 }
 
-pub fn glb(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
+/// A GLB of a JSON chunk and an optional BIN chunk; an error past GLB's 4 GiB.
+pub fn glb(json: &[u8], bin: Option<&[u8]>) -> Result<Vec<u8>> {
     let pad = |n: usize| (4 - n % 4) % 4;
     let jl = json.len() + pad(json.len());
     let bl = bin.map_or(0, |b| b.len() + pad(b.len()));
     let total = 12 + 8 + jl + if bin.is_some() { 8 + bl } else { 0 };
+    if total > u32::MAX as usize {
+        return Err(Error::Usage(format!("a GLB of {total} bytes is over the format's 4 GiB")));
+    }
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -159,5 +164,5 @@ pub fn glb(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
         out.extend_from_slice(b);
         out.resize(out.len() + pad(b.len()), 0);
     }
-    out
+    Ok(out)
 }

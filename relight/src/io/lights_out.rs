@@ -336,7 +336,7 @@ pub fn write(input: &Path, output: &Path, out: &Output) -> Result<()> {
         }
     }
     let text = serde_json::to_vec(&json).map_err(|e| Error::Usage(format!("JSON: {e}")))?;
-    let bytes = if is_glb(output) { glb(&text, bin.as_deref()) } else { text };
+    let bytes = if is_glb(output) { glb(&text, bin.as_deref())? } else { text };
     staged.add(output, &bytes).map_err(|e| io_err(output, e))?;
     staged.commit().map_err(|e| io_err(output, e))
 }
