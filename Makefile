@@ -10,7 +10,9 @@
 #                        from a spawn point, in out/render/ (relit.png, lightmap.png, small/)
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
 #                        relight of the sample and oa_dm1 (out/bench/relight.md), bake of
-#                        their relit scenes (out/bench/bake.md)
+#                        their relit scenes (out/bench/bake.md), relight's time per stage
+#                        against lights and rows (out/bench/scaling.{md,csv,svg})
+#   make bench-quick     the scaling benchmark on the bundled sample (CI runs it)
 #   make sample          regenerate the bundled sample from samples/src (committed)
 #   make fuzz            build the cargo-fuzz targets (fuzz/), seed them from the sample and
 #                        OpenArena, run each for FUZZ_SECONDS (default 60); see docs/limits.md
@@ -32,7 +34,7 @@ RENDER_FLAGS ?=
 SAMPLE_BSP := samples/sample/maps/sample.bsp
 FUZZ_SECONDS ?= 60
 
-.PHONY: all build sample test test-rust test-python python-deps node-deps maps bench clean data fuzz
+.PHONY: all build sample test test-rust test-python python-deps node-deps maps bench bench-quick clean data fuzz
 .PHONY: test-blender blender-deps render
 .DELETE_ON_ERROR:
 
@@ -108,7 +110,7 @@ render: build data blender-deps
 	$(BIN) relight $(OUT)/render/$(RENDER_MAP).gltf -o $(OUT)/render/$(RENDER_MAP).relit.gltf -q --report $(OUT)/render/$(RENDER_MAP).report.json $(RELIGHT_FLAGS)
 	$(BLENDER_VENV)/bin/python tools/blender/render.py --relit $(OUT)/render/$(RENDER_MAP).relit.gltf --original $(OUT)/render/$(RENDER_MAP).gltf --out $(OUT)/render --small 480 $(RENDER_FLAGS)
 
-bench: build data
+bench: build data python-deps
 	$(CARGO) bench --bench convert
 	@rm -rf $(OUT)/maps
 	@start=$$(date +%s.%N); $(MAKE) --no-print-directory -j2 maps > /dev/null; end=$$(date +%s.%N); \
@@ -117,6 +119,14 @@ bench: build data
 	echo "$$line"; echo "$$line" >> $(OUT)/bench/convert.md
 	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
 	bash benches/bake.sh $(BIN)
+	$(VENV)/bin/python benches/scaling.py --bin $(BIN) --scene $(OUT)/bench/relight/oa_dm1.glb --out $(OUT)/bench
+
+# The scaling benchmark's quick form (the bundled sample, a few seconds; CI runs it):
+# out/bench/quick/scaling.{md,csv,svg}.
+bench-quick: build python-deps
+	@mkdir -p $(OUT)/bench/quick
+	$(BIN) convert $(SAMPLE_BSP) -q -o $(OUT)/bench/quick/sample.glb
+	$(VENV)/bin/python benches/scaling.py --quick --bin $(BIN) --scene $(OUT)/bench/quick/sample.glb --out $(OUT)/bench/quick
 
 # Fuzzing (cargo-fuzz, libFuzzer): every parser for FUZZ_SECONDS each.
 fuzz: build data

@@ -687,3 +687,28 @@ fn bake_of_the_synthetic_ground_truth_is_at_the_quantisation_floor() {
         assert!(p["texels"].as_u64().unwrap() > 0);
     }
 }
+
+/// The surface lights are the map's own surfaces cut as q3map2 cut them: subdividing the
+/// mesh for the vertex target leaves their patches (count and area) as they are, so the
+/// basis costs rows times the map's patches, not rows times the subdivided triangles.
+#[test]
+fn surface_light_patches_do_not_follow_the_subdivision() {
+    let dir = tmp("patches");
+    let gltf = dir.join("oa_dm1.glb");
+    run(&["convert", "oa_dm1", "--game-dir", common::baseoa().to_str().unwrap(), "-o", gltf.to_str().unwrap(), "-q"]);
+    let surfaces = |extra: &[&str]| -> Vec<(String, u64, f64)> {
+        let (rep, out) = (dir.join("r.json"), dir.join("o.glb"));
+        let mut args = vec!["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", "grid:1", "--max-iterations", "0", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"];
+        args.extend_from_slice(extra);
+        run(&args);
+        report(&rep)["surfaces"].as_array().unwrap().iter().map(|s| (s["shader"].as_str().unwrap().to_string(), s["patches"].as_u64().unwrap(), s["area_m2"].as_f64().unwrap())).collect()
+    };
+    let luxel = surfaces(&[]);
+    let vertex = surfaces(&["--target", "vertex", "--subdivide", "0.5"]);
+    assert!(luxel.len() >= 4 && luxel.iter().all(|s| s.1 > 0), "{luxel:?}");
+    assert_eq!(luxel.len(), vertex.len());
+    for (a, b) in luxel.iter().zip(&vertex) {
+        assert_eq!((&a.0, a.1), (&b.0, b.1), "patches of {} changed with the subdivision", a.0);
+        assert!((a.2 - b.2).abs() <= 1e-6 * a.2.max(1.0), "{}: area {} then {}", a.0, a.2, b.2);
+    }
+}

@@ -445,14 +445,15 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
 
 /// Traces what the model needs of the geometry for the terms `plan` considers; `st`
 /// records each one's time.
-fn build_bases(scene: &Scene, rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
+/// `emitters`: the surface lights' patches, made before any subdivision.
+fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::surface::Patch>), rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
     let sky_triangles: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
     let sky = (plan.sky != Optional::Off).then(|| {
         let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
         model::sky::basis(rows, bvh, &sky_triangles, &model::sky::directions(it))
     });
     st.done("bases: sky");
-    let surfaces = if plan.surfaces != Optional::Off { model::surface::basis(scene, rows, bvh, plan.fast_area) } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
+    let surfaces = if plan.surfaces != Optional::Off { model::surface::basis_from(emitters, scene, rows, bvh, plan.fast_area) } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
     st.done("bases: surfaces");
     let luxels = rows.texel.iter().any(|t| t[0] != u32::MAX);
     let nb = if luxels && (plan.dirt != Optional::Off || plan.filter != Optional::Off) { model::compile::neighbours(rows) } else { vec![Vec::new(); rows.len()] };
@@ -525,7 +526,7 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
         fast_area: false,
     };
     let mut st = Stages { t: Instant::now(), list: Vec::new() };
-    let bases = build_bases(scene, &rows, &bvh, &plan, bounce_rays, false, &mut st);
+    let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, &mut st);
     let (device, _) = choose_backend(choice)?;
     let mut backend: Box<dyn Backend + '_> = match device {
         Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),
@@ -559,6 +560,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     st.done("read");
 
     progress.stage("subdivide");
+    // The surface lights are the map's own surfaces, cut as q3map2 cut them, whatever
+    // the subdivision does to the mesh.
+    let emitters = model::surface::patches(&scene);
     let subdivision = bound_of(opts).map(|b| subdivide::subdivide(&mut scene.mesh, &scene.materials, &scene.textures, b, opts.max_vertices));
     st.done("subdivide");
 
@@ -580,7 +584,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     progress.stage("bases");
     let (terms, compile_note) = plan_terms(opts, &scene);
-    let bases = build_bases(&scene, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
+    let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
 
     let mut backend: Box<dyn Backend + '_> = match plan {
         Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),

@@ -211,7 +211,14 @@ const SKIP_BYTES: f32 = 0.01;
 
 /// Builds the basis for `rows`. `fast`: q3map2's `-fast` cut of area lights.
 pub fn basis(scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis {
-    let (mut groups, patches) = patches(scene);
+    basis_from(patches(scene), scene, rows, bvh, fast)
+}
+
+/// [`basis`] of patches made beforehand: from the mesh as read, when `scene`'s mesh has
+/// been subdivided since (q3map2 cut the map's own surfaces, and a subdivided emitter's
+/// many small patches would make the cost grow with rows times patches).
+pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis {
+    let (mut groups, patches) = emitters;
     if patches.is_empty() {
         return SurfaceBasis { groups, offsets: vec![0; rows.len() + 1], ..Default::default() };
     }
