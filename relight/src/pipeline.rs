@@ -366,6 +366,18 @@ pub fn write_mesh(opts: &Options, path: &std::path::Path) -> Result<Option<subdi
     Ok(stats)
 }
 
+/// The box lights are searched and kept in: the rows' bounding box grown by 10% of its
+/// diagonal on every side, within the mesh's bounds.
+fn light_box(mesh: &crate::scene::Mesh, rows: &Rows) -> (glam::Vec3, glam::Vec3) {
+    let (mlo, mhi) = mesh.bounds();
+    let (rlo, rhi) = rows.pos.iter().fold((glam::Vec3::splat(f32::INFINITY), glam::Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    if !(rlo.is_finite() && rhi.is_finite()) {
+        return (mlo, mhi);
+    }
+    let pad = 0.1 * (rhi - rlo).length();
+    ((rlo - pad).max(mlo), (rhi + pad).min(mhi))
+}
+
 /// The luxel rows of `scene` (and the vertex-lit rows of `tg`), buried texels left out.
 fn luxel_rows(scene: &Scene, tg: &projection::Target, bvh: &Bvh) -> luxel::Luxels {
     let (lo, hi) = scene.mesh.bounds();
@@ -579,8 +591,13 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if rows.is_empty() || !rows.has_data() {
         return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
     }
-    let (lo, hi) = scene.mesh.bounds();
-    let diag = (hi - lo).length();
+    let diag = {
+        let (lo, hi) = scene.mesh.bounds();
+        (hi - lo).length()
+    };
+    // Where lights may go: around the surfaces that carry data, within the geometry (a
+    // huge ground plane far below the map must not spread the search over kilometres).
+    let (lo, hi) = light_box(&scene.mesh, &rows);
 
     progress.stage("bases");
     let (terms, compile_note) = plan_terms(opts, &scene);

@@ -236,12 +236,14 @@ impl Mesh {
             .collect();
     }
 
+    /// Bounding box of the vertices the triangles use (a vertex no triangle uses is not
+    /// geometry: an isolated vertex far away must not stretch the scene).
     pub fn bounds(&self) -> (Vec3, Vec3) {
         let mut lo = Vec3::splat(f32::INFINITY);
         let mut hi = Vec3::splat(f32::NEG_INFINITY);
-        for p in &self.positions {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
+        for p in self.triangles.iter().flatten().map(|&i| self.positions[i as usize]) {
+            lo = lo.min(p);
+            hi = hi.max(p);
         }
         (lo, hi)
     }

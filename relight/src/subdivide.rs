@@ -36,10 +36,26 @@ pub struct Stats {
     pub budget_reached: bool,
 }
 
-/// Edge length in the bound's unit, or 0 where the bound does not apply to this triangle.
+/// Edge length in the bound's unit, or 0 where the bound does not apply to this triangle
+/// (a lightmapped triangle without lightmap area carries no data: splitting it, a ground
+/// plane a kilometre wide, would spend the vertex budget where there is nothing to fit).
 fn edge_measure(mesh: &Mesh, mats: &[Material], texs: &[Texture], t: usize, a: u32, b: u32, bound: Bound) -> f32 {
     match bound {
-        Bound::Meters(_) => (mesh.positions[a as usize] - mesh.positions[b as usize]).length(),
+        Bound::Meters(_) => {
+            let no_data = mats.get(mesh.tri_material[t] as usize).is_some_and(|m| match (m.lighting, m.lightmap.and_then(|l| texs.get(l))) {
+                (Lighting::Lightmap, Some(tex)) => {
+                    let [i, j, k] = mesh.triangles[t].map(|v| mesh.uv1[v as usize]);
+                    let texels = 0.5 * (j - i).perp_dot(k - i).abs() * tex.width as f32 * tex.height as f32;
+                    !(texels > crate::rows::projection::MIN_LIGHTMAP_TEXELS)
+                }
+                _ => false,
+            });
+            if no_data {
+                0.0
+            } else {
+                (mesh.positions[a as usize] - mesh.positions[b as usize]).length()
+            }
+        }
         Bound::Texels(_) => {
             let m = &mats[mesh.tri_material[t] as usize];
             match (m.lighting, m.lightmap) {

@@ -580,7 +580,8 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     if mesh.triangles.is_empty() {
         return Err(Error::unsupported(path, "the scene has no triangles"));
     }
-    let (lo, hi) = world_pos.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    // The origin from the vertices triangles use (an isolated vertex is not geometry).
+    let (lo, hi) = mesh.triangles.iter().flatten().map(|&i| world_pos[i as usize]).fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| (lo.min(p), hi.max(p)));
     let origin = ((lo + hi) * 0.5).round();
     mesh.positions = world_pos.iter().map(|p| (*p - origin).as_vec3()).collect();
     for l in &mut lights {

@@ -78,7 +78,13 @@ pub struct TargetStats {
     pub samples: u64,
 }
 
-/// Quadrature order of triangle `t` (see the module docs).
+/// A lightmapped triangle's footprint below this (texels^2) holds no data: its corners
+/// would all read one point of the lightmap, with the weight of the triangle's world area
+/// (the luxel target refuses the same triangles, [`crate::rows::luxel`]).
+pub const MIN_LIGHTMAP_TEXELS: f32 = 1e-12;
+
+/// Quadrature order of triangle `t` (see the module docs); 0 for a lightmapped triangle
+/// without lightmap area (no samples: it carries no data).
 pub fn order(scene: &Scene, t: usize) -> u32 {
     let mesh = &scene.mesh;
     let [a, b, c] = mesh.triangles[t].map(|i| i as usize);
@@ -90,6 +96,9 @@ pub fn order(scene: &Scene, t: usize) -> u32 {
         0.5 * (p.x * q.y - p.y * q.x).abs() * tx.width as f32 * tx.height as f32
     };
     let lm = if mat.lighting == Lighting::Lightmap { texel_area(&mesh.uv1, mat.lightmap) } else { 0.0 };
+    if mat.lighting == Lighting::Lightmap && !(lm > MIN_LIGHTMAP_TEXELS) {
+        return 0;
+    }
     // Albedo detail adds samples, but at most 16 per triangle beyond the lightmap's need.
     let al = (texel_area(&mesh.uv0, mat.albedo) / 16.0).min(16.0);
     let want = (4.0 * lm).max(al).max(1.0);
@@ -128,6 +137,9 @@ pub fn triangle_sums(scene: &Scene, t: usize, out: &mut [f32; 3 * CORNER_FLOATS]
         return 0;
     }
     let m = order(scene, t);
+    if m == 0 {
+        return 0;
+    }
     let n = m * m;
     let wq = area / n as f32;
     let lm = if mat.lighting == Lighting::Lightmap { mat.lightmap.map(|i| &scene.textures[i]) } else { None };
