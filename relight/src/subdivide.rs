@@ -42,15 +42,8 @@ pub struct Stats {
 fn edge_measure(mesh: &Mesh, mats: &[Material], texs: &[Texture], t: usize, a: u32, b: u32, bound: Bound) -> f32 {
     match bound {
         Bound::Meters(_) => {
-            let no_data = mats.get(mesh.tri_material[t] as usize).is_some_and(|m| match (m.lighting, m.lightmap.and_then(|l| texs.get(l))) {
-                (Lighting::Lightmap, Some(tex)) => {
-                    let [i, j, k] = mesh.triangles[t].map(|v| mesh.uv1[v as usize]);
-                    let texels = 0.5 * (j - i).perp_dot(k - i).abs() * tex.width as f32 * tex.height as f32;
-                    !(texels > crate::rows::projection::MIN_LIGHTMAP_TEXELS)
-                }
-                _ => false,
-            });
-            if no_data {
+            use crate::rows::projection::{lightmap_texels, MIN_LIGHTMAP_TEXELS};
+            if lightmap_texels(mesh, mats, texs, t).is_some_and(|a| !(a > MIN_LIGHTMAP_TEXELS)) {
                 0.0
             } else {
                 (mesh.positions[a as usize] - mesh.positions[b as usize]).length()

@@ -155,15 +155,10 @@ impl Progress for Quiet {
 pub fn lightmap_texel_m(scene: &crate::scene::Scene) -> Option<f32> {
     let m = &scene.mesh;
     let (mut world, mut texels) = (0.0f64, 0.0f64);
-    for (t, tri) in m.triangles.iter().enumerate() {
-        let mat = &scene.materials[m.tri_material[t] as usize];
-        let Some(tex) = mat.lightmap.and_then(|i| scene.textures.get(i)).filter(|_| mat.lighting == crate::scene::Lighting::Lightmap) else { continue };
-        let [a, b, c] = tri.map(|i| m.uv1[i as usize].as_dvec2() * glam::DVec2::new(tex.width as f64, tex.height as f64));
-        let area_t = 0.5 * (b - a).perp_dot(c - a).abs();
-        if area_t.is_finite() {
-            world += m.triangle_area(t) as f64;
-            texels += area_t;
-        }
+    for t in 0..m.triangles.len() {
+        let Some(area_t) = crate::rows::projection::lightmap_texels(m, &scene.materials, &scene.textures, t).filter(|a| a.is_finite()) else { continue };
+        world += m.triangle_area(t) as f64;
+        texels += area_t as f64;
     }
     let s = (world / texels).sqrt();
     (texels > 0.0 && s.is_finite() && s > 0.0).then_some(s as f32)

@@ -96,7 +96,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
         let det = e1.perp_dot(e2);
         let uv_area = 0.5 * det.abs();
         let world_area = mesh.triangle_area(t) as f64;
-        if !(uv_area > 1e-12) || !(uv_area <= MAX_TEXELS_PER_TRIANGLE) || !(world_area > 0.0) || !world_area.is_finite() {
+        if !(uv_area > crate::rows::projection::MIN_LIGHTMAP_TEXELS as f64) || !(uv_area <= MAX_TEXELS_PER_TRIANGLE) || !(world_area > 0.0) || !world_area.is_finite() {
             st.triangles_refused += 1;
             continue;
         }

@@ -26,7 +26,7 @@ use glam::Vec2;
 use rayon::prelude::*;
 
 use crate::rows::{Row, Rows, Sampling};
-use crate::scene::{Lighting, Mesh, Scene};
+use crate::scene::{Lighting, Material, Mesh, Scene, Texture};
 use crate::texel;
 
 /// Floats per triangle corner in the per-triangle sums (see the module docs).
@@ -83,6 +83,15 @@ pub struct TargetStats {
 /// (the luxel target refuses the same triangles, [`crate::rows::luxel`]).
 pub const MIN_LIGHTMAP_TEXELS: f32 = 1e-12;
 
+/// The lightmap footprint of triangle `t`, texels^2 (TEXCOORD_1 area times the lightmap's
+/// size); `None` unless its material is lightmapped.
+pub fn lightmap_texels(mesh: &Mesh, mats: &[Material], texs: &[Texture], t: usize) -> Option<f32> {
+    let mat = mats.get(mesh.tri_material[t] as usize)?;
+    let tex = mat.lightmap.and_then(|l| texs.get(l)).filter(|_| mat.lighting == Lighting::Lightmap)?;
+    let [a, b, c] = mesh.triangles[t].map(|v| mesh.uv1[v as usize]);
+    Some(0.5 * (b - a).perp_dot(c - a).abs() * tex.width as f32 * tex.height as f32)
+}
+
 /// Quadrature order of triangle `t` (see the module docs); 0 for a lightmapped triangle
 /// without lightmap area (no samples: it carries no data).
 pub fn order(scene: &Scene, t: usize) -> u32 {
@@ -95,10 +104,10 @@ pub fn order(scene: &Scene, t: usize) -> u32 {
         let (p, q) = (uv[b] - uv[a], uv[c] - uv[a]);
         0.5 * (p.x * q.y - p.y * q.x).abs() * tx.width as f32 * tx.height as f32
     };
-    let lm = if mat.lighting == Lighting::Lightmap { texel_area(&mesh.uv1, mat.lightmap) } else { 0.0 };
-    if mat.lighting == Lighting::Lightmap && !(lm > MIN_LIGHTMAP_TEXELS) {
-        return 0;
-    }
+    let lm = match lightmap_texels(mesh, &scene.materials, &scene.textures, t) {
+        Some(lm) if !(lm > MIN_LIGHTMAP_TEXELS) => return 0,
+        lm => lm.unwrap_or(0.0),
+    };
     // Albedo detail adds samples, but at most 16 per triangle beyond the lightmap's need.
     let al = (texel_area(&mesh.uv0, mat.albedo) / 16.0).min(16.0);
     let want = (4.0 * lm).max(al).max(1.0);
