@@ -6,8 +6,9 @@
 #   make maps            convert every map of the game data to out/maps/*.glb (use -j)
 #   make test            the whole test suite (Rust and Python/Node checkers, Blender)
 #   make test-blender    the Blender round trip (bpy==5.0.1 in .venv-blender, headless)
-#   make render          Cycles renders of relit RENDER_MAP (oa_dm1) and of its lightmaps,
-#                        from a spawn point, in out/render/ (relit.png, lightmap.png, small/)
+#   make render          relit oa_dm1, oacmpdm4, oacmpctf1 (RENDER_MAPS) rendered in Blender
+#                        beside the game's own frames (OpenArena on ioquake3 under Xvfb) from
+#                        three spawn points each: out/render/table.md, side_by_side/*.png
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
 #                        relight of the sample and oa_dm1 (out/bench/relight.md), bake of
 #                        their relit scenes (out/bench/bake.md), relight's time per stage
@@ -29,8 +30,6 @@ CONVERT_FLAGS ?= --entity-lights
 RELIGHT_FLAGS ?=
 FETCH      := samples/fetch-openarena.sh
 BLENDER_VENV := .venv-blender
-RENDER_MAP ?= oa_dm1
-RENDER_FLAGS ?=
 SAMPLE_BSP := samples/sample/maps/sample.bsp
 FUZZ_SECONDS ?= 60
 
@@ -104,11 +103,8 @@ test-python: build data python-deps node-deps
 test-blender: build data blender-deps node-deps
 	Q3GLTF_BIN=$(BIN) $(BLENDER_VENV)/bin/python -m pytest tests/blender -q -p no:cacheprovider
 
-render: build data blender-deps
-	@mkdir -p $(OUT)/render
-	$(BIN) convert $(RENDER_MAP) --game-dir "$${GAME_DIR:-$$(bash $(FETCH))}" -q -o $(OUT)/render/$(RENDER_MAP).gltf
-	$(BIN) relight $(OUT)/render/$(RENDER_MAP).gltf -o $(OUT)/render/$(RENDER_MAP).relit.gltf -q --report $(OUT)/render/$(RENDER_MAP).report.json $(RELIGHT_FLAGS)
-	$(BLENDER_VENV)/bin/python tools/blender/render.py --relit $(OUT)/render/$(RENDER_MAP).relit.gltf --original $(OUT)/render/$(RENDER_MAP).gltf --out $(OUT)/render --small 480 $(RENDER_FLAGS)
+render: build data python-deps blender-deps
+	BIN=$(BIN) OUT=$(OUT) VENV=$(VENV) BLENDER_VENV=$(BLENDER_VENV) RELIGHT_FLAGS="$(RELIGHT_FLAGS)" bash tools/game/render_views.sh
 
 bench: build data python-deps
 	$(CARGO) bench --bench convert

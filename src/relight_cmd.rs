@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
+use q3gltf_relight::rows::look::Look;
 use q3gltf_relight::pipeline::{self, BackendChoice, FitMode, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
@@ -22,6 +23,14 @@ pub struct RelightArgs {
     /// thesis: the mass-lumped L2 projection of texture x lightmap onto the vertices).
     #[arg(long, default_value = "luxel", value_parser = ["luxel", "vertex"])]
     pub target: String,
+    /// The picture to reproduce: `lightmap`, q3map2's baked light as stored (recovers the
+    /// mapper's lights; the physics of the map), or `game`, what the game's screen shows
+    /// (the engine multiplies the texture's sRGB bytes by the lightmap clamped at 1, and
+    /// the screen's transfer function makes that light): a linear renderer such as
+    /// Blender's Cycles, lit by the result, then looks like the game. See README, "Which
+    /// look to fit".
+    #[arg(long, default_value = "lightmap", value_parser = ["lightmap", "game"])]
+    pub look: String,
     /// Refine the mesh before projecting the target: `lightmap` (no edge longer than one
     /// lightmap texel), `off`, or a largest edge length in meters. Default: `lightmap` with
     /// `--target vertex`, `off` with `--target luxel` (its lightmap rows do not depend on
@@ -209,6 +218,7 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
         input: a.input.clone(),
         output: a.output.clone().unwrap_or_default(),
         target: if a.target == "vertex" { TargetSpace::Vertex } else { TargetSpace::Luxel },
+        look: if a.look == "game" { Look::Game } else { Look::Lightmap },
         subdivide,
         max_vertices: a.max_vertices.max(3),
         init,

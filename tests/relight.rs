@@ -712,3 +712,28 @@ fn surface_light_patches_do_not_follow_the_subdivision() {
         assert!((a.2 - b.2).abs() <= 1e-6 * a.2.max(1.0), "{}: area {} then {}", a.0, a.2, b.2);
     }
 }
+
+/// `--look game`: the rows hold what the game's screen shows instead of the baked light
+/// (rows::look). The fit must then reproduce that picture better than the lights fitted
+/// to the baked light do, judged in the same space, and say which look it fitted.
+#[test]
+fn the_game_look_fits_what_the_screen_shows() {
+    let dir = tmp("look");
+    let gltf = convert_sample(&dir);
+    let (lm, game) = (dir.join("lightmap.gltf"), dir.join("game.gltf"));
+    let (rl, rg, rx) = (dir.join("lightmap.json"), dir.join("game.json"), dir.join("cross.json"));
+    let g = gltf.to_str().unwrap();
+    run(&["relight", g, "-o", lm.to_str().unwrap(), "--backend", "cpu", "--report", rl.to_str().unwrap(), "-q"]);
+    run(&["relight", g, "-o", game.to_str().unwrap(), "--backend", "cpu", "--look", "game", "--report", rg.to_str().unwrap(), "-q"]);
+    // The lightmap look's lights, judged by the game look's objective as they are.
+    run(&["relight", lm.to_str().unwrap(), "-o", dir.join("cross.gltf").to_str().unwrap(), "--backend", "cpu", "--look", "game", "--init", "input", "--max-iterations", "0", "--fit", "globals", "--report", rx.to_str().unwrap(), "-q"]);
+    let (l, gm, x) = (report(&rl), report(&rg), report(&rx));
+    assert_eq!(l["look"], "lightmap");
+    assert_eq!(gm["look"], "game");
+    let extras: Value = serde_json::from_str(&std::fs::read_to_string(&game).unwrap()).unwrap();
+    assert_eq!(extras["scenes"][0]["extras"]["q3_relight"]["look"], "game", "the file says which picture its lights reproduce");
+    let (el, eg, ex) = (l["rel_error_final"].as_f64().unwrap(), gm["rel_error_final"].as_f64().unwrap(), x["rel_error_initial"].as_f64().unwrap());
+    eprintln!("sample: lightmap look {el:.4}; game look {eg:.4}; the lightmap look's lights in the game look {ex:.4}");
+    assert!(eg.is_finite() && eg < 0.5, "game look error {eg}");
+    assert!(ex > 1.5 * eg, "the baked light's fit is not what the screen shows: {ex} against {eg}");
+}

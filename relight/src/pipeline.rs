@@ -19,6 +19,7 @@ use crate::io::gltf_in;
 use crate::io::lights_out::{self, OutLight, OutSpot, LM_PER_W};
 use crate::model::{self, Bases, Light, Model, Sun};
 use crate::rows::projection::{self, TargetStats};
+use crate::rows::look::{self, Look};
 use crate::rows::{luxel, Rows};
 use crate::scene::{Lighting, Scene};
 use crate::schemes;
@@ -106,6 +107,8 @@ pub struct Options {
     pub input: PathBuf,
     pub output: PathBuf,
     pub target: TargetSpace,
+    /// The picture the fit reproduces: the baked light or the game's screen.
+    pub look: Look,
     /// `None`: `Lightmap` for the vertex target, `Off` for the luxel target.
     pub subdivide: Option<Subdivide>,
     pub max_vertices: usize,
@@ -141,6 +144,7 @@ impl Default for Options {
             input: PathBuf::new(),
             output: PathBuf::new(),
             target: TargetSpace::Luxel,
+            look: Look::Lightmap,
             subdivide: None,
             max_vertices: 1_500_000,
             init: Init::Auto,
@@ -255,6 +259,7 @@ pub struct Report {
     pub triangles_input: usize,
     pub subdivision: Option<subdivide::Stats>,
     pub target_space: TargetSpace,
+    pub look: Look,
     pub target: TargetStats,
     pub luxel: Option<luxel::LuxelStats>,
     pub problem_rows: usize,
@@ -391,7 +396,7 @@ fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(
     let (lo, hi) = scene.mesh.bounds();
     let diag = (hi - lo).length();
     let ob = scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(2, |m| m.overbright_bits);
-    Ok(match opts.target {
+    let (mut rows, tstats, luxel_stats, backend) = match opts.target {
         TargetSpace::Vertex => {
             let (tg, tstats, target_backend) = project(plan, scene)?;
             (projection::rows(&scene.mesh, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob)), tstats, None, target_backend)
@@ -403,7 +408,11 @@ fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(
             let lx = luxel_rows(scene, &tg, bvh);
             (lx.rows, tstats, Some(lx.stats), format!("luxel rows on the cpu; vertex-lit projection: {backend}"))
         }
-    })
+    };
+    if opts.look == Look::Game {
+        look::to_game_screen(&mut rows);
+    }
+    Ok((rows, tstats, luxel_stats, backend))
 }
 
 /// Which optional terms the model considers, and with which fixed settings.
@@ -448,10 +457,21 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
         filter: from_record(opts.filter, c.has("-filter")),
         fast_area: c.has("-fast"),
     };
-    let note = match &c.cmdline {
+    let mut note = match &c.cmdline {
         Some(l) => format!("recorded compile: {l}"),
         None => "no recorded compile: dirt, filter and bounce decided by the data".into(),
     };
+    let mut p = p;
+    if opts.look == Look::Game {
+        // The game look is fitted for a renderer to draw: it has no dirt or filter, and its
+        // bounces carry the scene's own albedo at scale 1, not a fitted scale. Those terms
+        // stay off unless asked for.
+        let off = |o: Optional, asked: Optional| if asked == Optional::Auto { Optional::Off } else { o };
+        p.dirt = off(p.dirt, opts.dirt);
+        p.filter = off(p.filter, opts.filter);
+        p.bounce = off(p.bounce, opts.bounce);
+        note.push_str("; look game: dirt, filter and bounce off unless asked for (a renderer draws none of them as fitted)");
+    }
     (p, note)
 }
 
@@ -808,6 +828,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         "dirt": m.dirt,
         "filter": m.filter,
         "lights_are": if m.bounce.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" },
+        // The picture the lights reproduce: "lightmap" (show it like the game through
+        // tools/blender/game_display.py) or "game" (render it as it is).
+        "look": opts.look,
     });
     let out_sun = m.sun.map(|s| lights_out::OutSun {
         to_sun: s.to_sun.as_dvec3(),
@@ -855,6 +878,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         triangles_input,
         subdivision,
         target_space: opts.target,
+        look: opts.look,
         target: tstats,
         luxel: luxel_stats,
         problem_rows: rows.len(),

@@ -4,6 +4,7 @@ forward model at the same point (`q3gltf probe`): within 5%.
 
 - a point light as Blender exported it (test_roundtrip's edit);
 - a spot light pointing down (the point under it inside the inner cone);
+- a sun (KHR directional light in lux) 30 degrees off the plane's normal;
 - an emissive square (`emissiveFactor` x `KHR_materials_emissive_strength`, radiance in
   W/(m^2 sr)), as relight writes surface lights.
 
@@ -26,7 +27,8 @@ HALF = 2.0          # half size of the plane, meters
 VIEW = 0.05         # width of the rendered square, meters
 
 
-def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point", emitter=None) -> None:
+def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point", emitter=None,
+                      rotation=None) -> None:
     """A 4 m x 4 m plane at y = 0 facing +Y (white, rough) and one emitter above it: a point
     or spot light (pointing down, inner/outer cone 0.3/0.5 rad) of `intensity_cd` and
     `color` at HEIGHT, or with `emitter = (half_size_m, height_m, strength)` a square facing
@@ -76,6 +78,8 @@ def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point
             light["spot"] = {"innerConeAngle": 0.3, "outerConeAngle": 0.5}
             # -Z (where a glTF light shines) turned to -Y: -90 degrees about X.
             node["rotation"] = [-math.sqrt(0.5), 0, 0, math.sqrt(0.5)]
+        if rotation is not None:
+            node["rotation"] = list(rotation)
         doc["extensionsUsed"] = ["KHR_lights_punctual"]
         doc["extensions"] = {"KHR_lights_punctual": {"lights": [light]}}
         nodes.append(node)
@@ -209,5 +213,24 @@ def test_cycles_radiance_of_an_emissive_surface_matches_probe(bpy, q3gltf, workd
     bsdf = next(n for n in bpy.data.materials["glow"].node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     assert abs(bsdf.inputs["Emission Strength"].default_value - strength) < 1e-4
     assert np.allclose(list(bsdf.inputs["Emission Color"].default_value)[:3], color, atol=1e-4)
+    assert np.allclose(expected, analytic, rtol=0.01), (expected, analytic)
+    assert np.all(np.abs(ratio - 1) < 0.05), ratio
+
+
+def test_cycles_radiance_of_a_sun_matches_probe(bpy, q3gltf, workdir):
+    # A directional light of 20000 lux, 30 degrees from straight down: -Z turned -60 degrees
+    # about X shines along (0, -cos 30, -sin 30).
+    lux, color, tilt = 20000.0, [1.0, 0.9, 0.7], math.radians(30.0)
+    a = -(math.pi / 2 - tilt)
+    probe, rendered = probe_and_render(bpy, q3gltf, workdir, "sun", color, intensity_cd=lux, kind="directional",
+                                       rotation=[math.sin(a / 2), 0, 0, math.cos(a / 2)])
+    expected = np.array(probe["radiance_white"])
+    analytic = lux / 683 * math.cos(tilt) / math.pi * np.array(color)  # E = S cos(theta), L = E / pi
+    ratio = rendered / expected
+    print(f"\nsun {lux} lux: Cycles {rendered}, probe {expected}, analytic {analytic}, Cycles/probe {ratio}")
+    suns = [o for o in bpy.data.objects if o.type == "LIGHT"]
+    assert len(suns) == 1 and suns[0].data.type == "SUN", [(o.name, o.data.type) for o in suns]
+    assert abs(suns[0].data.energy - lux / 683) < 1e-3 * lux / 683, suns[0].data.energy
+    assert probe["suns"] == 1
     assert np.allclose(expected, analytic, rtol=0.01), (expected, analytic)
     assert np.all(np.abs(ratio - 1) < 0.05), ratio

@@ -8,8 +8,20 @@ the lightmap's byte encoding) multiplied into the base color by a Mix node.
 - `lightmap_preview()` makes every material show what the game shows: an emission of
   `albedo x e`, with `e = byte * 2^overbright / 255` from the lightmap (or the vertex
   colours), the radiance relight fits. Render it with no lights and a black world.
+- `game_preview()` makes every material show what the game's screen shows: the engine
+  (ioquake3's classic renderer) multiplies 8-bit display values, the texture's sRGB bytes
+  times the lightmap shifted by the overbright bits and clamped keeping its hue, and the
+  screen turns that into light: an emission of `srgb_decode(T_srgb * L)` with
+  `L = e / max(1, max channel of e)` (the sRGB transfer function, about `x^2.2`, the
+  same curve tools/game/compare.py decodes the frames with). The floor of what any linear renderer can be
+  compared with the game's frame (texture filtering, items, the sky are the rest).
 - `relit_materials()` prepares the scene for rendering with real lights: vertex-lit
-  materials stop multiplying their baked vertex colours into the albedo.
+  materials stop multiplying their baked vertex colours into the albedo, and relight's
+  ambient term (scene extras `q3_relight.ambient`, W/m^2) becomes each lit material's
+  emission `albedo x E_a / pi`: the light q3map2 adds everywhere, which no lamp and no
+  world colour can reach inside a closed map; and what casts no shadow in q3map2 (the
+  sky, glass and other shaders that say so) casts none in Cycles, and the camera sees
+  the sky's texture, not the sky light it emits.
 
 Usage inside Blender or with `import bpy`:
 
@@ -19,6 +31,8 @@ Usage inside Blender or with `import bpy`:
 from __future__ import annotations
 
 import bpy
+
+import node_math
 
 DEFAULT_OVERBRIGHT_BITS = 2
 
@@ -66,16 +80,21 @@ def _mix_multiply(nodes, links, a, b):
     return mix.outputs[2]        # Result (colour)
 
 
-def lightmap_preview(materials=None) -> int:
-    """Rewire each material (default: all) to emit albedo x e. Returns how many changed."""
-    changed = 0
+def _rewirable(materials=None):
+    """(material, Principled BSDF, output node, nodes, links) of each material (default:
+    all) that has both nodes, as the importer wires them."""
     for mat in materials if materials is not None else bpy.data.materials:
         if mat.node_tree is None:
             continue
         bsdf, out = _principled(mat), _output(mat)
-        if bsdf is None or out is None:
-            continue
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        if bsdf is not None and out is not None:
+            yield mat, bsdf, out, mat.node_tree.nodes, mat.node_tree.links
+
+
+def lightmap_preview(materials=None) -> int:
+    """Rewire each material (default: all) to emit albedo x e. Returns how many changed."""
+    changed = 0
+    for mat, bsdf, out, nodes, links in _rewirable(materials):
         base = bsdf.inputs["Base Color"]
         # Albedo (the vertex-lit Mix already multiplies in COLOR_0, i.e. e / 2^overbright).
         albedo = base.links[0].from_socket if base.is_linked else None
@@ -95,23 +114,282 @@ def lightmap_preview(materials=None) -> int:
         bits = int(mat.get("q3_overbright_bits", DEFAULT_OVERBRIGHT_BITS))
         # Unlit surfaces (light grid in the game) are shown at e = 1.
         emit.inputs["Strength"].default_value = float(2 ** bits) if kind != "none" else 1.0
-        shader = emit.outputs["Emission"]
-        alpha = bsdf.inputs["Alpha"]
-        if alpha.is_linked:  # alpha-tested / blended: keep the cut-outs
-            transparent = nodes.new("ShaderNodeBsdfTransparent")
-            mix = nodes.new("ShaderNodeMixShader")
-            links.new(alpha.links[0].from_socket, mix.inputs["Fac"])
-            links.new(transparent.outputs["BSDF"], mix.inputs[1])
-            links.new(shader, mix.inputs[2])
-            shader = mix.outputs["Shader"]
-        links.new(shader, out.inputs["Surface"])
+        links.new(_keep_cutouts(nodes, links, bsdf, emit.outputs["Emission"]), out.inputs["Surface"])
         changed += 1
     return changed
 
 
-def relit_materials(materials=None) -> int:
+def srgb_decode(nodes, links, colour):
+    """Nodes for the sRGB transfer function's inverse per channel of a colour socket
+    (display value -> light; node_math.srgb_decode per channel)."""
+    sep = nodes.new("ShaderNodeSeparateColor")
+    links.new(colour, sep.inputs["Color"])
+    comb = nodes.new("ShaderNodeCombineColor")
+    for i in range(3):
+        links.new(node_math.srgb_decode(nodes, links, sep.outputs[i]), comb.inputs[i])
+    return comb.outputs["Color"]
+
+
+def _keep_cutouts(nodes, links, bsdf, shader):
+    """Alpha-tested or blended materials keep their cut-outs: `shader` mixed with a
+    Transparent BSDF by the BSDF's alpha input, when it is linked."""
+    alpha = bsdf.inputs["Alpha"]
+    if not alpha.is_linked:
+        return shader
+    transparent = nodes.new("ShaderNodeBsdfTransparent")
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(alpha.links[0].from_socket, mix.inputs["Fac"])
+    links.new(transparent.outputs["BSDF"], mix.inputs[1])
+    links.new(shader, mix.inputs[2])
+    return mix.outputs["Shader"]
+
+
+def _image_and_light(mat, kind):
+    """The base colour image's output (or None) and the baked light's output (lightmap
+    image or colour attribute; None for unlit), from convert's wiring after import."""
+    bsdf = _principled(mat)
+    base = bsdf.inputs["Base Color"]
+    image = light = None
+    if base.is_linked:
+        src = base.links[0].from_node
+        if src.bl_idname == "ShaderNodeTexImage":
+            image = src
+        elif src.bl_idname == "ShaderNodeMix":
+            for sock in src.inputs:
+                for l in sock.links:
+                    if l.from_node.bl_idname == "ShaderNodeTexImage":
+                        image = l.from_node
+                    elif kind == "vertex" and l.from_node.bl_idname in ("ShaderNodeVertexColor", "ShaderNodeAttribute"):
+                        light = l.from_socket
+    if kind == "lightmap":
+        lm = lightmap_image_node(mat)
+        lm.image.colorspace_settings.name = "Non-Color"
+        light = lm.outputs["Color"]
+    return image, light
+
+
+def game_preview(materials=None) -> int:
+    """Rewire each material (default: all) to emit what the game's screen shows (see the
+    module docs). Textures are read as their raw sRGB bytes. Returns how many changed."""
+    changed = 0
+    for mat, bsdf, out, nodes, links in _rewirable(materials):
+        kind = lighting_kind(mat)
+        image, light = _image_and_light(mat, kind)
+        factor = bsdf.inputs["Base Color"].default_value
+        display = None  # T_srgb * factor
+        if image is not None:
+            image.image.colorspace_settings.name = "Non-Color"
+            display = image.outputs["Color"]
+        if light is not None:
+            bits = int(mat.get("q3_overbright_bits", DEFAULT_OVERBRIGHT_BITS))
+            shifted = nodes.new("ShaderNodeVectorMath")
+            shifted.operation = "SCALE"
+            links.new(light, shifted.inputs[0])
+            shifted.inputs["Scale"].default_value = float(2 ** bits)
+            sep = nodes.new("ShaderNodeSeparateColor")
+            links.new(shifted.outputs["Vector"], sep.inputs["Color"])
+            peak = nodes.new("ShaderNodeMath")
+            peak.operation = "MAXIMUM"
+            links.new(sep.outputs[0], peak.inputs[0])
+            links.new(sep.outputs[1], peak.inputs[1])
+            peak2 = nodes.new("ShaderNodeMath")
+            peak2.operation = "MAXIMUM"
+            links.new(peak.outputs[0], peak2.inputs[0])
+            links.new(sep.outputs[2], peak2.inputs[1])
+            floor1 = nodes.new("ShaderNodeMath")
+            floor1.operation = "MAXIMUM"
+            links.new(peak2.outputs[0], floor1.inputs[0])
+            floor1.inputs[1].default_value = 1.0
+            inv = nodes.new("ShaderNodeMath")
+            inv.operation = "DIVIDE"
+            inv.inputs[0].default_value = 1.0
+            links.new(floor1.outputs[0], inv.inputs[1])
+            clamped = nodes.new("ShaderNodeVectorMath")  # L = e / max(1, max channel)
+            clamped.operation = "SCALE"
+            links.new(shifted.outputs["Vector"], clamped.inputs[0])
+            links.new(inv.outputs[0], clamped.inputs["Scale"])
+            lit = clamped.outputs["Vector"]
+            display = _mix_multiply(nodes, links, display, lit) if display is not None else lit
+        emit = nodes.new("ShaderNodeEmission")
+        if display is not None:
+            tint = nodes.new("ShaderNodeMix")  # the material's factor (1 for convert's maps)
+            tint.data_type = "RGBA"
+            tint.blend_type = "MULTIPLY"
+            tint.inputs["Factor"].default_value = 1.0
+            links.new(display, tint.inputs[6])
+            tint.inputs[7].default_value = factor if image is not None else (1.0, 1.0, 1.0, 1.0)
+            links.new(srgb_decode(nodes, links, tint.outputs[2]), emit.inputs["Color"])
+        else:
+            emit.inputs["Color"].default_value = factor
+        emit.inputs["Strength"].default_value = 1.0
+        links.new(_keep_cutouts(nodes, links, bsdf, emit.outputs["Emission"]), out.inputs["Surface"])
+        changed += 1
+    return changed
+
+
+def scene_ambient_irradiance():
+    """relight's ambient irradiance (W/m^2 per channel) from the scene's custom properties
+    (`q3_relight.ambient`, imported from the glTF scene extras), or None."""
+    relit = bpy.context.scene.get("q3_relight")
+    amb = relit.get("ambient") if relit is not None else None
+    if amb is None:
+        return None
+    amb = [float(v) for v in amb]
+    return amb if len(amb) == 3 and any(v > 0 for v in amb) else None
+
+
+def add_ambient(ambient_w_m2, materials=None) -> int:
+    """Each lit, non-emissive material also emits `albedo x E_a / pi` (radiance of a
+    Lambertian surface under irradiance E_a): relight's ambient term. Returns how many
+    changed."""
+    import math
+    colour = [v / math.pi for v in ambient_w_m2]
+    changed = 0
+    for mat in materials if materials is not None else bpy.data.materials:
+        bsdf = _principled(mat) if mat.node_tree is not None else None
+        if bsdf is None or lighting_kind(mat) == "none":
+            continue
+        if bsdf.inputs["Emission Strength"].default_value > 0 and (
+                bsdf.inputs["Emission Color"].is_linked or any(bsdf.inputs["Emission Color"].default_value[:3])):
+            continue  # a surface light: its emission is its own
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        base = bsdf.inputs["Base Color"]
+        mix = nodes.new("ShaderNodeMix")
+        mix.data_type = "RGBA"
+        mix.blend_type = "MULTIPLY"
+        mix.inputs["Factor"].default_value = 1.0
+        if base.is_linked:
+            links.new(base.links[0].from_socket, mix.inputs[6])
+        else:
+            mix.inputs[6].default_value = base.default_value
+        mix.inputs[7].default_value = (*colour, 1.0)
+        links.new(mix.outputs[2], bsdf.inputs["Emission Color"])
+        bsdf.inputs["Emission Strength"].default_value = 1.0
+        changed += 1
+    return changed
+
+
+def is_sky_object(obj) -> bool:
+    """Under convert's "sky" node (Blender adds ".001" to a clashing name)."""
+    while obj is not None:
+        if obj.name == "sky" or (obj.name.startswith("sky.") and obj.name[4:].isdigit()):
+            return True
+        obj = obj.parent
+    return False
+
+
+def shadows_as_q3map2() -> int:
+    """Surfaces that cast no shadow in q3map2 cast none in Cycles either: the sky (a sun or
+    sky ray that reaches a sky surface has reached the sky; a material is sky wherever it
+    is used once it is used under convert's "sky" node, as relight reads it) and materials
+    whose shader says so (extras `q3_casts_shadow` false: glass, some sky and effect
+    shaders). As plain geometry a glass roof or the sky brushes would put the map in the
+    sun's shadow. Each such material becomes transparent to shadow rays (Light Path "Is
+    Shadow Ray"); relight's shadow rays skip the same surfaces. Returns how many
+    materials changed."""
+    mats = sky_materials()
+    mats |= {m for m in bpy.data.materials if m.get("q3_casts_shadow") is False or m.get("q3_casts_shadow") == 0}
+    changed = 0
+    for mat in mats:
+        if mat.get("q3_shadow_rule_applied"):
+            continue
+        out = _output(mat) if mat.node_tree is not None else None
+        if out is None or not out.inputs["Surface"].is_linked:
+            continue
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        shader = out.inputs["Surface"].links[0].from_socket
+        path = nodes.new("ShaderNodeLightPath")
+        clear = nodes.new("ShaderNodeBsdfTransparent")
+        mix = nodes.new("ShaderNodeMixShader")
+        links.new(path.outputs["Is Shadow Ray"], mix.inputs["Fac"])
+        links.new(shader, mix.inputs[1])
+        links.new(clear.outputs["BSDF"], mix.inputs[2])
+        links.new(mix.outputs["Shader"], out.inputs["Surface"])
+        mat["q3_shadow_rule_applied"] = True
+        changed += 1
+    return changed
+
+
+def sky_materials() -> set:
+    """Materials used under convert's "sky" node (sky wherever they are used, as relight
+    reads them)."""
+    return {slot.material for o in bpy.data.objects if o.type == "MESH" and is_sky_object(o) and not o.get("q3_sky_copy")
+            for slot in o.material_slots if slot.material is not None}
+
+
+def sky_as_seen() -> int:
+    """The camera sees the sky's texture (as the game draws it, at full brightness), not
+    the sky light relight wrote as its emission, which still lights the scene: each object
+    under convert's "sky" node is hidden from camera rays, and a copy sharing its mesh,
+    seen only by the camera, shows each material's base colour as emission that lights
+    nothing. (A Light Path "Is Camera Ray" mix would leak into direct light: Cycles
+    evaluates a mesh light with the shading point's camera flag.) Returns how many objects
+    got a copy."""
+    looks = {}
+
+    def look_of(mat):
+        if mat in looks:
+            return looks[mat]
+        m = bpy.data.materials.new((mat.name if mat else "sky") + " (as seen)")
+        m.use_nodes = True
+        nodes = m.node_tree.nodes
+        nodes.clear()
+        emit = nodes.new("ShaderNodeEmission")
+        out = nodes.new("ShaderNodeOutputMaterial")
+        m.node_tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+        bsdf = _principled(mat) if mat is not None and mat.node_tree is not None else None
+        if bsdf is not None and bsdf.inputs["Base Color"].is_linked:
+            src = bsdf.inputs["Base Color"].links[0].from_node
+            if src.bl_idname == "ShaderNodeTexImage":
+                tex = nodes.new("ShaderNodeTexImage")
+                tex.image = src.image
+                uv = src.inputs["Vector"].links[0].from_node if src.inputs["Vector"].is_linked else None
+                if uv is not None and uv.bl_idname == "ShaderNodeUVMap":
+                    uvn = nodes.new("ShaderNodeUVMap")
+                    uvn.uv_map = uv.uv_map
+                    m.node_tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+                m.node_tree.links.new(tex.outputs["Color"], emit.inputs["Color"])
+        elif bsdf is not None:
+            emit.inputs["Color"].default_value = bsdf.inputs["Base Color"].default_value
+        m.cycles.emission_sampling = "NONE"  # lights nothing
+        looks[mat] = m
+        return m
+
+    changed = 0
+    for o in [o for o in bpy.data.objects if o.type == "MESH" and is_sky_object(o) and not o.get("q3_sky_look")]:
+        # (A parented copy keeps the parent, so it stays under the sky node.)
+        copy = o.copy()  # shares the mesh
+        copy["q3_sky_look"] = True
+        copy["q3_sky_copy"] = True
+        for coll in o.users_collection:
+            coll.objects.link(copy)
+        for slot_o, slot_c in zip(o.material_slots, copy.material_slots):
+            slot_c.link = "OBJECT"
+            slot_c.material = look_of(slot_o.material)
+        copy.visible_diffuse = copy.visible_glossy = copy.visible_transmission = False
+        copy.visible_volume_scatter = copy.visible_shadow = False
+        o.visible_camera = False
+        o["q3_sky_look"] = True
+        changed += 1
+    return changed
+
+
+def relit_materials(materials=None, ambient: bool = True) -> int:
     """Vertex-lit materials: take the baked vertex colours out of the albedo (connect the
-    base colour image straight to the BSDF). Returns how many changed."""
+    base colour image straight to the BSDF); with `ambient`, relight's ambient term as
+    emission (see `add_ambient`); what casts no shadow in q3map2 casts none
+    (`shadows_as_q3map2`); the camera sees the sky's texture (`sky_as_seen`). Returns how
+    many vertex-lit materials changed."""
+    changed = _unbake_vertex_colours(materials)
+    amb = scene_ambient_irradiance() if ambient else None
+    if amb is not None:
+        add_ambient(amb, materials)
+    shadows_as_q3map2()
+    sky_as_seen()
+    return changed
+
+
+def _unbake_vertex_colours(materials=None) -> int:
     changed = 0
     for mat in materials if materials is not None else bpy.data.materials:
         bsdf = _principled(mat) if mat.node_tree is not None else None

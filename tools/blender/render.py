@@ -1,6 +1,14 @@
 """Cycles renders of a converted map from a spawn point: relit (the file's point lights)
 and lightmapped (the baked lightmaps as emission, see lightmap_preview.py).
 
+With `--poses OUT/poses.json` (written by tools/game/frame.py: the game's own frames and
+the eye position and yaw the engine used), renders every view that file lists at its size
+and 90 degree horizontal field of view: `relit_K.png` (the relit file in Cycles, its
+lights, emission and ambient), `relit-display_K.png` (the same through the compositor
+of game_display.py: shown the way the game shows light), `engine_K.png` (the baked
+lighting as the engine draws it, lightmap_preview.game_preview) and `lightmap_K.png`
+(the linear preview albedo x e), and `unlit_K.png` (white where no lightmap sets the look: the sky, unlit surfaces). tools/game/compare.py sets them beside the game's frames.
+
     python tools/blender/render.py --relit out/render/oa_dm1.relit.gltf \
         --original out/render/oa_dm1.gltf --out out/render [--width 960 --height 540
         --samples 64 --spawn 0 --bounces 0 --small 480]
@@ -24,6 +32,7 @@ import bpy
 from mathutils import Vector
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import game_display  # noqa: E402
 import lightmap_preview  # noqa: E402
 
 EYE_HEIGHT_UNITS = 26.0  # ioq3 DEFAULT_VIEWHEIGHT
@@ -42,24 +51,41 @@ def spawn_points() -> list:
                   key=lambda o: o.name)
 
 
+def game_camera(name: str, location, yaw_rad: float):
+    """The scene's camera as the game's: at `location` (m), level, looking along `yaw_rad`
+    (counter-clockwise from +X in Quake axes, which are Blender's after glTF import), 90
+    degrees horizontally (cg_fov)."""
+    cam_data = bpy.data.cameras.new(name)
+    cam_data.sensor_fit = "HORIZONTAL"
+    cam_data.angle = math.radians(90.0)
+    cam_data.clip_start = 0.01
+    cam_data.clip_end = 1.0e5  # a map spans kilometres; Blender's default 100 m would cut its far walls and sky
+    cam = bpy.data.objects.new(name, cam_data)
+    bpy.context.scene.collection.objects.link(cam)
+    cam.location = location
+    cam.rotation_euler = (math.radians(90.0), 0.0, yaw_rad - math.radians(90.0))
+    bpy.context.scene.camera = cam
+    return cam
+
+
 def add_spawn_camera(index: int = 0, scale: float = DEFAULT_SCALE):
-    """A camera at spawn point `index`, eye height, looking along its `angle` (degrees,
-    counter-clockwise from +X in Quake axes, which are Blender's after glTF import)."""
+    """A camera at spawn point `index`, eye height, looking along its `angle` (degrees)."""
     spawns = spawn_points()
     if not spawns:
         raise SystemExit("no info_player_deathmatch empty in the scene (imported without extras?)")
     sp = spawns[index % len(spawns)]
     yaw = math.radians(float(sp.get("angle", "0") or 0))
-    cam_data = bpy.data.cameras.new("spawn")
-    cam_data.sensor_fit = "HORIZONTAL"
-    cam_data.angle = math.radians(90.0)
-    cam_data.clip_start = 0.01
-    cam = bpy.data.objects.new("spawn", cam_data)
-    bpy.context.scene.collection.objects.link(cam)
-    cam.location = sp.matrix_world.translation + Vector((0.0, 0.0, EYE_HEIGHT_UNITS * scale))
-    cam.rotation_euler = (math.radians(90.0), 0.0, yaw - math.radians(90.0))
-    bpy.context.scene.camera = cam
-    return cam
+    return game_camera("spawn", sp.matrix_world.translation + Vector((0.0, 0.0, EYE_HEIGHT_UNITS * scale)), yaw)
+
+
+def add_pose_camera(eye_units, yaw_deg: float, scale: float):
+    """A camera at an eye position in Quake units (times the map's scale), looking along
+    `yaw_deg`: a pose the engine reported (tools/game/frame.py)."""
+    return game_camera("pose", Vector(eye_units) * scale, math.radians(yaw_deg))
+
+
+def map_scale() -> float:
+    return float(bpy.context.scene.get("q3_scale", DEFAULT_SCALE))
 
 
 def setup_cycles(width: int, height: int, samples: int, bounces: int) -> None:
@@ -142,6 +168,88 @@ def render_pair(relit: Path, original: Path, out: Path, width: int, height: int,
     return relit_png, lightmap_png
 
 
+def render_views(relit: Path, original: Path, poses_json: Path, out: Path, samples: int,
+                 bounces: int | None = None, denoise: bool = True,
+                 also: list[tuple[str, Path]] | None = None, only: set[str] | None = None) -> list[Path]:
+    """Render every view of `poses_json` three ways (see the module docs), and each
+    further relit file of `also` as NAME_K.png. Returns the files."""
+    import json
+    poses = json.loads(poses_json.read_text())
+    written = []
+
+    def wanted(prefix: str) -> bool:
+        return only is None or prefix in only
+
+    def each_view(prefix: str, samples_: int, bounces_: int) -> None:
+        for p in poses:
+            for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
+                bpy.data.objects.remove(o)
+            add_pose_camera(p["eye"], p["yaw"], map_scale())
+            setup_cycles(p["width"], p["height"], samples_, bounces_)
+            if denoise:
+                denoise_if_available()
+            path = out / f"{prefix}_{p['view']}.png"
+            render_png(path)
+            written.append(path)
+
+    for prefix, path, display in [("relit", relit, False), ("relit-display", relit, True)] + [(n, p, False) for n, p in also or []]:
+        if not wanted(prefix):
+            continue
+        load(path)
+        lightmap_preview.relit_materials()
+        if display:
+            game_display.setup()
+        relit_info = bpy.context.scene.get("q3_relight")
+        n = bounces
+        if n is None:  # as many bounces as the fit modelled (none when it folded them into the lights)
+            n = int(relit_info.get("bounces", 0)) if relit_info is not None and relit_info.get("bounce_scale") is not None else 0
+        each_view(prefix, samples, n)
+    for prefix, rewire in (("engine", lightmap_preview.game_preview), ("lightmap", lightmap_preview.lightmap_preview)):
+        if not wanted(prefix):
+            continue
+        load(original)
+        for o in [o for o in bpy.data.objects if o.type == "LIGHT"]:
+            bpy.data.objects.remove(o)
+        rewire()
+        each_view(prefix, max(4, samples // 4), 0)  # emission seen directly: only anti-aliasing
+    # Where no lightmap sets the look (the sky, unlit surfaces): white, everything else black.
+    # The game draws its own sky and shader effects there (sky boxes, scrolling clouds,
+    # stars, animated stages) that no glTF material carries.
+    if wanted("unlit"):
+        load(original)
+        for o in [o for o in bpy.data.objects if o.type == "LIGHT"]:
+            bpy.data.objects.remove(o)
+        mask_materials()
+        each_view("unlit", 4, 0)
+    return written
+
+
+def mask_materials() -> None:
+    """Every surface under convert's "sky" node or with an unlit material (no lightmap, no
+    vertex lighting) emits white, every other one black."""
+    def emitter(name, value):
+        m = bpy.data.materials.new(name)
+        m.use_nodes = True
+        nodes = m.node_tree.nodes
+        nodes.clear()
+        emit = nodes.new("ShaderNodeEmission")
+        emit.inputs["Color"].default_value = (value, value, value, 1.0)
+        out = nodes.new("ShaderNodeOutputMaterial")
+        m.node_tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+        return m
+    white, black = emitter("unlit mask", 1.0), emitter("lit", 0.0)
+    for o in bpy.data.objects:
+        if o.type != "MESH":
+            continue
+        sky = lightmap_preview.is_sky_object(o)
+        if not o.material_slots:
+            o.data.materials.append(white if sky else black)
+        for slot in o.material_slots:
+            unlit = sky or slot.material is None or lightmap_preview.lighting_kind(slot.material) == "none"
+            slot.link = "OBJECT"
+            slot.material = white if unlit else black
+
+
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--relit", type=Path, required=True)
@@ -151,13 +259,27 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--height", type=int, default=540)
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--spawn", type=int, default=0, help="which info_player_deathmatch (sorted by name)")
-    ap.add_argument("--bounces", type=int, default=0,
-                    help="Cycles bounces for the relit image (0: direct light only, as the lightmap)")
+    ap.add_argument("--bounces", type=int, default=None,
+                    help="Cycles bounces for the relit image (default: 0, or with --poses the passes "
+                         "of bounced light the relit file says its fit modelled)")
     ap.add_argument("--no-denoise", action="store_true")
     ap.add_argument("--small", type=int, default=None, help="also write OUT/small/*.png this wide")
+    ap.add_argument("--also", action="append", default=[], metavar="NAME=PATH",
+                    help="with --poses: another relit file, rendered as OUT/NAME_K.png (repeatable)")
+    ap.add_argument("--only", default=None, metavar="KIND,...",
+                    help="with --poses: render only these (relit, relit-display, NAME of --also, engine, lightmap, unlit)")
+    ap.add_argument("--poses", type=Path, default=None,
+                    help="poses.json of tools/game/frame.py: render its views (relit, engine, lightmap) instead")
     args = ap.parse_args(argv)
+    if args.poses is not None:
+        for p in render_views(args.relit, args.original, args.poses, args.out, args.samples,
+                              args.bounces, not args.no_denoise,
+                              [(a.split("=", 1)[0], Path(a.split("=", 1)[1])) for a in args.also],
+                              set(args.only.split(",")) if args.only else None):
+            print(p)
+        return
     for p in render_pair(args.relit, args.original, args.out, args.width, args.height, args.samples,
-                         args.spawn, args.bounces, not args.no_denoise, args.small):
+                         args.spawn, args.bounces or 0, not args.no_denoise, args.small):
         print(p)
 
 

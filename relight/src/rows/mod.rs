@@ -23,8 +23,10 @@
 //! at all, censored texels included (a fully saturated lightmap is not a perfect fit of
 //! darkness).
 //!
-//! [`Sampling`] holds how the data was sampled (q3map2's rules for its lightmaps).
+//! [`Sampling`] holds how the data was sampled (q3map2's rules for its lightmaps);
+//! [`look`] turns the rows into what the game's screen shows instead of the baked light.
 
+pub mod look;
 pub mod luxel;
 pub mod projection;
 

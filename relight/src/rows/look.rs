@@ -1,0 +1,165 @@
+//! Which picture the rows hold: q3map2's light as baked, or what the game's screen shows.
+//!
+//! The lightmap bytes are q3map2's linear light (`e = byte 2^overbright / 255`); fitting
+//! them recovers the mapper's lights. The game does not show `albedo e`: ioquake3's
+//! classic renderer multiplies 8-bit display values, the texture's sRGB byte `T` times the
+//! lightmap shifted by the overbright bits and clamped keeping its hue,
+//! `L = e / max(1, max_c e_c)`, and the screen turns `T L` into light through the sRGB
+//! transfer function `D`. So a texel of linear albedo `a` (`T = D^-1(a)`) shows
+//!
+//! ```text
+//! radiance = D(D^-1(a) L) = a g(a, L),   g(a, L) = D(D^-1(a) L) / a
+//! ```
+//!
+//! and a linear renderer (Cycles) shows `a E / pi`. Fitting `E / pi` to `g` makes the
+//! renderer's picture the game's: [`Look::Game`]. `g` is close to `L^2.2` (exactly `L^2.4`
+//! in the curve's upper part, `L` in its linear toe), so the game is darker than the bytes'
+//! light wherever `e < 1`, and cannot show more than `L = 1` (`e >= 1` saturates: those
+//! rows become lower bounds). Measured against the game's own frames in `make render`
+//! (tools/game/compare.py).
+
+use serde::Serialize;
+
+use super::Rows;
+
+/// The picture the fit reproduces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Look {
+    /// q3map2's baked light as stored (`albedo e`): the mapper's lights (the default).
+    #[default]
+    Lightmap,
+    /// What the game's screen shows (`a g(a, L)`, see the module docs): a linear renderer
+    /// lit by the result looks like the game.
+    Game,
+}
+
+/// The sRGB transfer function (display value in [0, 1] -> light).
+pub fn srgb_decode(v: f64) -> f64 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
+
+/// Its inverse (light in [0, 1] -> display value).
+pub fn srgb_encode(l: f64) -> f64 {
+    let l = l.clamp(0.0, 1.0);
+    if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 }
+}
+
+/// `g(a, L)`: the light the screen shows per unit of linear albedo `a` where the engine's
+/// clamped lightmap value is `l` (in [0, 1]). For `a -> 0` it tends to `l` (the curve's
+/// linear toe); it is 1 at `l = 1` and increasing in `l`.
+pub fn screen_factor(albedo: f64, l: f64) -> f64 {
+    let l = l.clamp(0.0, 1.0);
+    if albedo <= 1e-9 {
+        return l;
+    }
+    let a = albedo.min(1.0);
+    srgb_decode(srgb_encode(a) * l) / a
+}
+
+/// Rewrites `rows` (built from the lightmaps, [`Look::Lightmap`]) into what the game's
+/// screen shows ([`Look::Game`]): every interval and lower bound `a e` becomes
+/// `a g(a, L(e))`, with one hue clamp per row from the middle of its intervals (the
+/// engine clamps a texel's three channels together). A row whose light the screen
+/// saturates (`max_c e_c > 1`) becomes a lower bound: any model at least that bright
+/// shows the same pixel. Rows without albedo carry no information either way and stay
+/// as they are. Recomputes the error's denominator.
+pub fn to_game_screen(rows: &mut Rows) {
+    for i in 0..rows.len() {
+        let a = rows.albedo[i].map(|v| v as f64);
+        if a.iter().all(|&v| v <= 1e-9) {
+            continue;
+        }
+        // e of each bound (radiance / albedo); channels without albedo have no light to show.
+        let e = |v: f32, c: usize| if a[c] > 1e-9 { v as f64 / a[c] } else { 0.0 };
+        let w = rows.weight[i];
+        let peak_mid = (0..3).filter(|&c| w[c] > 0.0).map(|c| 0.5 * (e(rows.lo[i][c], c) + e(rows.hi[i][c], c))).fold(0.0, f64::max);
+        let peak_lower = (0..3).map(|c| e(rows.lower[i][c], c)).fold(0.0, f64::max);
+        let shown = |v: f64, c: usize, peak: f64| (a[c] * screen_factor(a[c], v / peak.max(1.0))) as f32;
+        let saturated = peak_mid > 1.0;
+        for c in 0..3 {
+            let lower = if rows.lower[i][c] > 0.0 { shown(e(rows.lower[i][c], c), c, peak_lower) } else { 0.0 };
+            if saturated {
+                // The screen shows the clamped colour whatever the light above it.
+                let lo = shown(e(rows.lo[i][c], c), c, peak_mid);
+                rows.lower[i][c] = if w[c] > 0.0 { lo.max(lower) } else { lower };
+                rows.weight[i][c] = 0.0;
+                rows.lo[i][c] = 0.0;
+                rows.hi[i][c] = 0.0;
+            } else {
+                rows.lower[i][c] = lower;
+                if w[c] > 0.0 {
+                    rows.lo[i][c] = shown(e(rows.lo[i][c], c), c, 1.0);
+                    rows.hi[i][c] = shown(e(rows.hi[i][c], c), c, 1.0).max(rows.lo[i][c]);
+                }
+            }
+        }
+    }
+    rows.finish();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rows::{Row, Sampling};
+    use glam::Vec3;
+
+    #[test]
+    fn the_transfer_function_round_trips_and_the_factor_is_the_screens() {
+        for k in 0..=100 {
+            let v = k as f64 / 100.0;
+            assert!((srgb_encode(srgb_decode(v)) - v).abs() < 1e-12);
+        }
+        // 8-bit check: display byte 128 is light 0.2158605 (the standard's table).
+        assert!((srgb_decode(128.0 / 255.0) - 0.215_860_5).abs() < 1e-6);
+        // g(a, 1) = 1; g(a, 0) = 0; increasing; ~ L^2.4 in the upper part of the curve.
+        for a in [0.02, 0.2, 0.5, 1.0] {
+            assert!((screen_factor(a, 1.0) - 1.0).abs() < 1e-12);
+            assert_eq!(screen_factor(a, 0.0), 0.0);
+            let mut prev = 0.0;
+            for k in 1..=50 {
+                let g = screen_factor(a, k as f64 / 50.0);
+                assert!(g > prev);
+                prev = g;
+            }
+        }
+        let (a, l) = (0.5, 0.5);
+        let t = srgb_encode(a);
+        assert!((screen_factor(a, l) - ((t * l + 0.055) / 1.055f64).powf(2.4) / a).abs() < 1e-12);
+        // Dark albedo: the linear toe, g -> L.
+        assert!((screen_factor(1e-12, 0.3) - 0.3).abs() < 1e-12);
+    }
+
+    fn row(albedo: [f32; 3], e_lo: [f32; 3], e_hi: [f32; 3]) -> Row {
+        Row { vertex: 0, material: 0, texel: [u32::MAX; 3], pos: Vec3::ZERO, normal: Vec3::Z, albedo, lo: [0, 1, 2].map(|c| albedo[c] * e_lo[c]), hi: [0, 1, 2].map(|c| albedo[c] * e_hi[c]), weight: [1.0; 3], lower: [0.0; 3], area: 1.0 }
+    }
+
+    #[test]
+    fn rows_become_what_the_screen_shows() {
+        let mut rows = Rows::new(Sampling::plain(1.0));
+        rows.push(row([0.5, 0.25, 0.1], [0.5, 0.25, 0.75], [0.52, 0.27, 0.77])); // below saturation
+        rows.push(row([0.5, 0.5, 0.5], [2.0, 1.0, 0.5], [2.1, 1.05, 0.55])); // the engine clamps: hue kept
+        rows.push(Row { weight: [0.0; 3], lo: [0.0; 3], hi: [0.0; 3], lower: [2.0, 2.0, 1.0], ..row([0.5; 3], [0.0; 3], [0.0; 3]) }); // censored
+        rows.push(row([0.0; 3], [1.0; 3], [1.1; 3])); // no albedo: untouched
+        rows.finish();
+        let before = rows.clone();
+        to_game_screen(&mut rows);
+        for c in 0..3 {
+            let a = before.albedo[0][c] as f64;
+            let e = before.lo[0][c] as f64 / a;
+            assert!((rows.lo[0][c] as f64 - a * screen_factor(a, e)).abs() < 1e-6);
+            assert!(rows.hi[0][c] >= rows.lo[0][c] && rows.lo[0][c] < before.lo[0][c], "the screen is darker than the light below e = 1");
+        }
+        // Saturated: the brightest channel shows 1 (radiance = albedo), the others keep the hue.
+        assert_eq!(rows.weight[1], [0.0; 3]);
+        let mid = |c: usize| 0.5 * (before.lo[1][c] + before.hi[1][c]) as f64 / 0.5;
+        let peak = mid(0);
+        assert!((rows.lower[1][1] as f64 - 0.5 * screen_factor(0.5, before.lo[1][1] as f64 / 0.5 / peak)).abs() < 1e-6);
+        assert!(rows.lower[1][0] as f64 > 0.5 * 0.9);
+        // Censored: lower bounds through the same clamp.
+        assert!((rows.lower[2][0] - 0.5).abs() < 1e-6 && (rows.lower[2][2] as f64 - 0.5 * screen_factor(0.5, 0.5)).abs() < 1e-6);
+        assert_eq!(rows.row(3).lo, before.row(3).lo);
+        assert!(rows.norm2 > 0.0 && rows.norm2 < before.norm2);
+    }
+}

@@ -1,0 +1,215 @@
+"""The game's own frame as the reference (tools/game/frame.py: OpenArena on ioquake3 under
+Xvfb) against Blender's renders from the pose the engine reports (tools/blender/render.py
+--poses), measured like `make render` does (tools/game/compare.py).
+
+- The engine preview (lightmap_preview.game_preview: the baked lighting drawn the way the
+  engine draws it) must come close to the game's frame, and much closer than the linear
+  preview `albedo x e`, which is what a naive emission shows: the test fails if the pose,
+  the field of view, the axes, the overbright shift, the hue clamp or the transfer
+  function is wrong (each alone moves the error far above the bound).
+- relight's ambient term reaches the relit render as each lit material's emission
+  `albedo x E_a / pi` (lightmap_preview.add_ambient), checked in the node wiring and in
+  Cycles' units.
+"""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lightmap_preview
+import render
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO_ROOT / "tools" / "game"))
+import compare  # noqa: E402
+import frame  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def engine() -> Path:
+    out = subprocess.run(["bash", str(REPO_ROOT / "samples" / "fetch-openarena.sh"), "--engine"],
+                         check=True, capture_output=True, text=True).stdout.strip()
+    return Path(out)
+
+
+@pytest.fixture(scope="module")
+def views(engine, dm1, dm1_relit, workdir) -> Path:
+    """The game's frame from oa_dm1's first spawn point (small, 4:3), and Blender's renders
+    from the pose the engine used: the relit file (plain and through the game display),
+    the engine preview and the linear preview."""
+    out = workdir / "game_view"
+    poses = frame.shoot(engine, "oa_dm1", frame.spawn_poses(dm1, 1), out, width=192, height=144)
+    assert len(poses) == 1 and (out / "game_0.png").is_file()
+    render.render_views(dm1_relit, dm1, out / "poses.json", out, samples=8, bounces=0, denoise=False)
+    return out
+
+
+def test_the_engine_reports_where_it_drew_the_frame(views, dm1):
+    pose = json.loads((views / "poses.json").read_text())[0]
+    spawn = frame.spawn_poses(dm1, 1)[0]
+    # The push of setviewpos carries the spectator forward along its yaw, then it stops.
+    yaw = math.radians(spawn["yaw"])
+    d = np.array(pose["eye"]) - (np.array(spawn["origin"]) + [0, 0, 27])
+    along = d[0] * math.cos(yaw) + d[1] * math.sin(yaw)
+    across = -d[0] * math.sin(yaw) + d[1] * math.cos(yaw)
+    assert 0 <= along <= 120 and abs(across) <= 2 and abs(d[2]) <= 2, (pose, spawn)
+    assert (pose["yaw"] - spawn["yaw"]) % 360 == pytest.approx(0, abs=1)
+    game = compare.load_linear(views / "game_0.png")
+    assert game.shape == (144, 192, 3)
+    assert 0.005 < game.mean() < 0.5, "a frame of the lit room, neither black nor white"
+
+
+def test_the_engine_preview_is_the_floor(views):
+    rows = compare.compare_dir(views)
+    row = rows[0]
+    print(f"\nagainst the game's frame: engine preview {row['engine']:.3f}, linear preview {row['lightmap']:.3f}; "
+          f"means game {row['game_mean']} engine {row['engine_mean']} linear {row['lightmap_mean']}")
+    # Measured 0.41 at 640x480 (texture filtering, items and the sky make the rest).
+    assert row["engine"] < 0.6
+    # albedo x e is about twice as bright as what the game shows (2.0 at 640x480).
+    assert row["lightmap"] > 2.5 * row["engine"]
+    # The mean colour per channel: measured 0.74 / 0.78 / 0.85 of the game's at 192x144 (the
+    # game's bytes are about 1.2x T x L everywhere, not explained yet; README, "Blender").
+    game, eng = np.array(row["game_mean"]), np.array(row["engine_mean"])
+    assert np.all((eng / game > 0.6) & (eng / game < 1.2)), eng / game
+
+
+def test_nothing_the_game_lights_is_black_in_the_relit_render(views, dm1_relit):
+    """The black triangles of the first relit renders were surfaces in the shadow of every
+    fitted light, lit in the fit only by its ambient term, which the render left out."""
+    relit_info = json.loads(dm1_relit.read_text())["scenes"][0]["extras"]["q3_relight"]
+    assert relit_info["ambient"] is not None and max(relit_info["ambient"]) > 0, relit_info
+    relit = compare.load_linear(views / "relit_0.png")
+    engine = compare.load_linear(views / "engine_0.png")
+    black = (relit.max(axis=2) <= compare.srgb_to_linear(np.array(2 / 255))) & (engine.max(axis=2) >= compare.srgb_to_linear(np.array(20 / 255)))
+    assert black.mean() < 1e-3, f"{black.sum()} black pixels where the game's lighting is not"
+
+
+def _wall(bpy, name: str, albedo: float, size: float = 2.0):
+    """A plane at z = 0 facing +Z, Principled with specular 0 (as convert's materials
+    import), grey `albedo`, lit by a lightmap as far as the tooling is concerned."""
+    bpy.ops.mesh.primitive_plane_add(size=size)
+    plane = bpy.context.object
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    mat["q3_lighting"] = "lightmap"
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (albedo, albedo, albedo, 1.0)
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    plane.data.materials.append(mat)
+    return plane
+
+
+def _mean_seen_from_above(bpy, path: Path, ortho_scale: float = 1.0) -> float:
+    """Mean linear RGB of an 8x8 Cycles render (EXR) by an orthographic camera 2 m above
+    the origin looking down."""
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    cam.data.type = "ORTHO"
+    cam.data.ortho_scale = ortho_scale
+    cam.location = (0, 0, 2)
+    bpy.context.scene.collection.objects.link(cam)
+    bpy.context.scene.camera = cam
+    render.setup_cycles(8, 8, 4, 0)
+    bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
+    bpy.context.scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path))
+    return float(np.array(img.pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+
+
+def test_ambient_becomes_emission_in_cycles_units(bpy, dm1, workdir):
+    """A relit file with ambient E_a only (no light): every lit material emits
+    albedo x E_a / pi, and a Cycles render of a flat-lit wall reads that radiance."""
+    render.load(dm1)
+    bpy.context.scene["q3_relight"] = {"ambient": [0.6, 0.3, 0.15]}
+    lightmap_preview.relit_materials()
+    amb = lightmap_preview.scene_ambient_irradiance()
+    assert amb == pytest.approx([0.6, 0.3, 0.15])
+    lit = [m for m in bpy.data.materials if m.node_tree is not None and lightmap_preview.lighting_kind(m) != "none"]
+    assert lit
+    for m in lit:
+        bsdf = lightmap_preview._principled(m)
+        if bsdf is None:
+            continue
+        assert bsdf.inputs["Emission Strength"].default_value == 1.0, m.name
+        mix = bsdf.inputs["Emission Color"].links[0].from_node
+        assert list(mix.inputs[7].default_value)[:3] == pytest.approx([v / math.pi for v in (0.6, 0.3, 0.15)], rel=1e-5)
+
+    # Units: a grey Lambertian wall under ambient only, seen by an orthographic camera.
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    _wall(bpy, "wall", 0.5)
+    bpy.context.scene["q3_relight"] = {"ambient": [0.9, 0.9, 0.9]}
+    lightmap_preview.relit_materials()
+    assert _mean_seen_from_above(bpy, workdir / "ambient.exr") == pytest.approx(0.5 * 0.9 / math.pi, rel=1e-3)
+
+
+@pytest.mark.parametrize("e", [0.3, 2.0])
+def test_game_display_shows_light_the_way_the_engine_does(bpy, workdir, e):
+    """game_display's compositor on a flat-lit wall of albedo 0.5 under relight's ambient
+    (e = E_a / pi): the pixel is D(D^-1(0.5) min(1, e)), the engine's formula, not 0.5 e."""
+    import game_display
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    _wall(bpy, "wall", 0.5)
+    bpy.context.scene["q3_relight"] = {"ambient": [e * math.pi] * 3}
+    lightmap_preview.relit_materials()
+    game_display.setup()
+    pixel = _mean_seen_from_above(bpy, workdir / f"display_{e}.exr")
+    t = compare.srgb_to_linear(np.array([1.0]))  # D(1) = 1: sanity of the shared helper
+    assert t[0] == pytest.approx(1.0)
+    enc = 1.055 * 0.5 ** (1 / 2.4) - 0.055
+    want = float(compare.srgb_to_linear(np.array([enc * min(1.0, e)]))[0])
+    print(f"\ne = {e}: pixel {pixel:.5f}, engine formula {want:.5f}, linear {0.5 * e:.5f}")
+    assert pixel == pytest.approx(want, rel=2e-3)
+
+
+def test_the_sky_and_glass_cast_no_shadow(bpy, workdir):
+    """A sun above a ground plane, with a plane of convert's "sky" node between them and a
+    second plane of the same material elsewhere in the world (relight counts a material
+    as sky wherever it is used) and a glass plane (extras `q3_casts_shadow` false): after relit_materials the ground is lit as if neither
+    were there (q3map2's rule, and relight's model), S / pi for a white ground under a sun
+    of S W/m^2 straight down."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    _wall(bpy, "ground", 1.0, size=4.0)
+    sky = bpy.data.objects.new("sky", None)
+    bpy.context.scene.collection.objects.link(sky)
+    sky_mat = bpy.data.materials.new("textures/skies/x#unlit")
+    sky_mat.use_nodes = True
+    bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 5))
+    bpy.context.object.parent = sky
+    bpy.context.object.data.materials.append(sky_mat)
+    bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 4))  # "world", same material
+    bpy.context.object.data.materials.append(sky_mat)
+    glass = bpy.data.materials.new("textures/x/glass")  # a shader that casts no shadow
+    glass.use_nodes = True
+    glass["q3_casts_shadow"] = False
+    bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 3))
+    bpy.context.object.data.materials.append(glass)
+    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+    sun.data.energy = 3.0
+    sun.data.angle = 0.0
+    bpy.context.scene.collection.objects.link(sun)
+
+    def ground_radiance(name):
+        for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
+            bpy.data.objects.remove(o)
+        return _mean_seen_from_above(bpy, workdir / f"{name}.exr", ortho_scale=0.5)
+
+    shadowed = ground_radiance("sky_shadow")
+    assert lightmap_preview.relit_materials() == 0
+    assert lightmap_preview.shadows_as_q3map2() == 0, "applied once"
+    # The camera sees the sky through a copy that only the camera sees (sky_as_seen).
+    sky_plane = next(o for o in bpy.data.objects if o.parent == sky and not o.get("q3_sky_copy"))
+    copy = next(o for o in bpy.data.objects if o.get("q3_sky_copy"))
+    assert not sky_plane.visible_camera and sky_plane.visible_shadow
+    assert copy.visible_camera and not (copy.visible_diffuse or copy.visible_shadow) and copy.data == sky_plane.data
+    lit = ground_radiance("sky_no_shadow")
+    print(f"\nground under the sky plane: {shadowed:.4f} before, {lit:.4f} after; S / pi = {3.0 / math.pi:.4f}")
+    assert shadowed < 0.01
+    assert lit == pytest.approx(3.0 / math.pi, rel=1e-3)
