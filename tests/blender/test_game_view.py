@@ -97,7 +97,6 @@ def _wall(bpy, name: str, albedo: float, size: float = 2.0):
     bpy.ops.mesh.primitive_plane_add(size=size)
     plane = bpy.context.object
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
     mat["q3_lighting"] = "lightmap"
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (albedo, albedo, albedo, 1.0)
@@ -180,14 +179,12 @@ def test_the_sky_and_glass_cast_no_shadow(bpy, workdir):
     sky = bpy.data.objects.new("sky", None)
     bpy.context.scene.collection.objects.link(sky)
     sky_mat = bpy.data.materials.new("textures/skies/x#unlit")
-    sky_mat.use_nodes = True
     bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 5))
     bpy.context.object.parent = sky
     bpy.context.object.data.materials.append(sky_mat)
     bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 4))  # "world", same material
     bpy.context.object.data.materials.append(sky_mat)
     glass = bpy.data.materials.new("textures/x/glass")  # a shader that casts no shadow
-    glass.use_nodes = True
     glass["q3_casts_shadow"] = False
     bpy.ops.mesh.primitive_plane_add(size=40.0, location=(0, 0, 3))
     bpy.context.object.data.materials.append(glass)

@@ -331,7 +331,6 @@ def sky_as_seen() -> int:
         if mat in looks:
             return looks[mat]
         m = bpy.data.materials.new((mat.name if mat else "sky") + " (as seen)")
-        m.use_nodes = True
         nodes = m.node_tree.nodes
         nodes.clear()
         emit = nodes.new("ShaderNodeEmission")

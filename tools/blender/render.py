@@ -229,7 +229,6 @@ def mask_materials() -> None:
     vertex lighting) emits white, every other one black."""
     def emitter(name, value):
         m = bpy.data.materials.new(name)
-        m.use_nodes = True
         nodes = m.node_tree.nodes
         nodes.clear()
         emit = nodes.new("ShaderNodeEmission")
