@@ -5,6 +5,9 @@ forward model at the same point (`q3gltf probe`): within 5%.
 - a point light as Blender exported it (test_roundtrip's edit);
 - a spot light pointing down (the point under it inside the inner cone);
 - a sun (KHR directional light in lux) 30 degrees off the plane's normal;
+- a sky light (the sky's emission, under convert's "sky" node, as relight writes it),
+  rendered through the tooling's relit_materials (sky seen by the camera as its texture,
+  sky surfaces casting no shadow), which must not change the light it gives;
 - an emissive square (`emissiveFactor` x `KHR_materials_emissive_strength`, radiance in
   W/(m^2 sr)), as relight writes surface lights.
 
@@ -28,7 +31,7 @@ VIEW = 0.05         # width of the rendered square, meters
 
 
 def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point", emitter=None,
-                      rotation=None) -> None:
+                      rotation=None, sky=None) -> None:
     """A 4 m x 4 m plane at y = 0 facing +Y (white, rough) and one emitter above it: a point
     or spot light (pointing down, inner/outer cone 0.3/0.5 rad) of `intensity_cd` and
     `color` at HEIGHT, or with `emitter = (half_size_m, height_m, strength)` a square facing
@@ -71,6 +74,51 @@ def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point
                           "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0, "roughnessFactor": 1}})
         nodes.append({"name": "emitter", "mesh": 1})
         doc["extensionsUsed"] = ["KHR_materials_emissive_strength"]
+    elif sky:
+        # Convert's "sky" node: a box of half size `h` and height `y` around the plane, open
+        # at the bottom, its faces turned inwards, emitting `color x strength` (as relight
+        # writes a sky light), with the shader's q3map_skyLight in the extras.
+        h, y, strength = sky
+        corners = [[-h, 0, -h], [h, 0, -h], [h, 0, h], [-h, 0, h]]
+        top = [[x, y, z] for x, _, z in corners]
+        quads = [top[::-1]] + [[corners[i], corners[(i + 1) % 4], top[(i + 1) % 4], top[i]] for i in range(4)]
+        spos = np.array([v for q in quads for v in q], "<f4")
+        centre = np.array([0, y / 2, 0], "<f4")
+        snrm = []
+        for q in quads:
+            qa = np.array(q, "<f4")
+            n = np.cross(qa[1] - qa[0], qa[2] - qa[0])
+            n /= np.linalg.norm(n)
+            if np.dot(centre - qa.mean(axis=0), n) < 0:  # inwards
+                n = -n
+            snrm += [n] * 4
+        snrm = np.array(snrm, "<f4")
+        sidx = []
+        for k, q in enumerate(quads):
+            qa = np.array(q, "<f4")
+            a, b, c = 4 * k, 4 * k + 1, 4 * k + 2
+            face = np.cross(qa[1] - qa[0], qa[2] - qa[0])
+            if np.dot(face, snrm[4 * k]) > 0:
+                sidx += [a, b, c, a, c, 4 * k + 3]
+            else:
+                sidx += [a, c, b, a, 4 * k + 3, c]
+        sidx = np.array(sidx, "<u2")
+        off = len(blob)
+        blob += spos.tobytes() + snrm.tobytes() + sidx.tobytes()
+        views += [{"buffer": 0, "byteOffset": off, "byteLength": spos.nbytes, "target": 34962},
+                  {"buffer": 0, "byteOffset": off + spos.nbytes, "byteLength": snrm.nbytes, "target": 34962},
+                  {"buffer": 0, "byteOffset": off + spos.nbytes + snrm.nbytes, "byteLength": sidx.nbytes, "target": 34963}]
+        accessors += [{"bufferView": 3, "componentType": 5126, "count": len(spos), "type": "VEC3",
+                       "min": spos.min(axis=0).tolist(), "max": spos.max(axis=0).tolist()},
+                      {"bufferView": 4, "componentType": 5126, "count": len(snrm), "type": "VEC3"},
+                      {"bufferView": 5, "componentType": 5123, "count": len(sidx), "type": "SCALAR"}]
+        meshes.append({"name": "sky", "primitives": [{"attributes": {"POSITION": 3, "NORMAL": 4}, "indices": 5, "material": 1}]})
+        materials.append({"name": "textures/skies/test#unlit", "emissiveFactor": list(color),
+                          "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": strength}},
+                          "extras": {"q3_lighting": "none", "q3_skylight": [{"value": 100.0, "iterations": 8, "color": [1, 1, 1]}]},
+                          "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 0, 1], "metallicFactor": 0, "roughnessFactor": 1}})
+        nodes.append({"name": "sky", "mesh": 1})
+        doc["extensionsUsed"] = ["KHR_materials_emissive_strength"]
     else:
         light = {"type": kind, "name": "probe_light", "intensity": intensity_cd, "color": list(color)}
         node = {"name": "probe_light", "translation": [0, HEIGHT, 0], "extensions": {"KHR_lights_punctual": {"light": 0}}}
@@ -93,10 +141,12 @@ def write_plane_scene(path: Path, intensity_cd: float, color, kind: str = "point
     path.write_text(json.dumps(doc, indent=1))
 
 
-def cycles_radiance(bpy, scene_path: Path, exr: Path, samples: int = 16) -> np.ndarray:
+def cycles_radiance(bpy, scene_path: Path, exr: Path, samples: int = 16, prepare=None) -> np.ndarray:
     """Mean RGB radiance (W m^-2 sr^-1 per unit of light colour) that Cycles renders of the
-    plane just under the light."""
+    plane just under the light. `prepare()` runs after the import (the render tooling)."""
     import_gltf(bpy, scene_path)
+    if prepare is not None:
+        prepare()
     scene = bpy.context.scene
     plane = bpy.data.objects["plane"]
     mat = bpy.data.materials.new("white_lambert")
@@ -168,11 +218,11 @@ def test_cycles_radiance_matches_probe(bpy, edited, q3gltf, workdir):
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
 
 
-def probe_and_render(bpy, q3gltf, workdir: Path, name: str, color, samples: int = 16, **scene) -> tuple:
+def probe_and_render(bpy, q3gltf, workdir: Path, name: str, color, samples: int = 16, prepare=None, **scene) -> tuple:
     scene_path = workdir / f"units_{name}.gltf"
     write_plane_scene(scene_path, color=color, **scene)
     probe = json.loads(run(q3gltf, "probe", scene_path, "--at", "0,0,0", "--normal", "0,1,0").stdout)
-    rendered = cycles_radiance(bpy, scene_path, workdir / f"units_{name}.exr", samples)
+    rendered = cycles_radiance(bpy, scene_path, workdir / f"units_{name}.exr", samples, prepare)
     return probe, rendered
 
 
@@ -233,4 +283,25 @@ def test_cycles_radiance_of_a_sun_matches_probe(bpy, q3gltf, workdir):
     assert abs(suns[0].data.energy - lux / 683) < 1e-3 * lux / 683, suns[0].data.energy
     assert probe["suns"] == 1
     assert np.allclose(expected, analytic, rtol=0.01), (expected, analytic)
+    assert np.all(np.abs(ratio - 1) < 0.05), ratio
+
+
+def test_cycles_radiance_of_a_sky_light_matches_probe(bpy, q3gltf, workdir):
+    # A sky box 40 m across and 20 m high around the plane, radiance (0.6, 0.8, 1) x 2
+    # W/(m^2 sr): an open plane under it receives E = pi L (a uniform radiance over the
+    # whole hemisphere), which is what relight's sky model gives for the same emission.
+    import lightmap_preview
+
+    color, strength = [0.6, 0.8, 1.0], 2.0
+    probe, rendered = probe_and_render(bpy, q3gltf, workdir, "sky", color, samples=256, intensity_cd=0.0,
+                                       sky=(20.0, 20.0, strength), prepare=lightmap_preview.relit_materials)
+    expected = np.array(probe["radiance_white"])
+    # E / pi = L over the part of the hemisphere the box covers (all but the sides' last
+    # few degrees down to the horizon: within 1%).
+    analytic = strength * np.array(color)
+    ratio = rendered / expected
+    print(f"\nsky {strength} W/(m2 sr): Cycles {rendered}, probe {expected}, analytic {analytic}, Cycles/probe {ratio}")
+    hidden = [o for o in bpy.data.objects if o.get("q3_sky_look") and not o.get("q3_sky_copy")]
+    assert hidden and not hidden[0].visible_camera, "the sky's own surfaces hidden from the camera"
+    assert np.allclose(expected, analytic, rtol=0.03), (expected, analytic)
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
