@@ -210,3 +210,40 @@ def test_the_sky_and_glass_cast_no_shadow(bpy, workdir):
     print(f"\nground under the sky plane: {shadowed:.4f} before, {lit:.4f} after; S / pi = {3.0 / math.pi:.4f}")
     assert shadowed < 0.01
     assert lit == pytest.approx(3.0 / math.pi, rel=1e-3)
+
+
+def test_bounced_light_carries_the_fits_bounce_scale(bpy, workdir):
+    """A floor lit only by a wall that a horizontal sun lights (one bounce): with the fit's
+    bounce scale s in the scene extras, relit_materials makes the floor s times as bright
+    (the model's pass s K rho T), while the camera still sees the floor's own albedo."""
+    def floor_radiance(scale):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        _wall(bpy, "floor", 0.5, size=4.0)
+        wall = _wall(bpy, "wall", 0.5, size=4.0)
+        wall.location = (1.0, 0.0, 1.0)
+        wall.rotation_euler = (0.0, math.pi / 2, 0.0)
+        sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+        sun.data.energy = 5.0
+        sun.data.angle = 0.0
+        sun.rotation_euler = (0.0, -math.pi / 2, 0.0)  # shines along +X: grazes the floor
+        bpy.context.scene.collection.objects.link(sun)
+        bpy.context.scene["q3_relight"] = {"bounce_scale": [scale] * 3}
+        lightmap_preview.relit_materials()
+        cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+        cam.data.type = "ORTHO"
+        cam.data.ortho_scale = 0.5
+        cam.location = (-0.5, 0.0, 2.0)
+        bpy.context.scene.collection.objects.link(cam)
+        bpy.context.scene.camera = cam
+        render.setup_cycles(8, 8, 256, 1)
+        bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
+        path = workdir / f"bounce_{scale}.exr"
+        bpy.context.scene.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True)
+        img = bpy.data.images.load(str(path))
+        return float(np.array(img.pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+
+    one, two = floor_radiance(1.0), floor_radiance(2.0)
+    print(f"\nfloor lit by one bounce: {one:.5f} at scale 1, {two:.5f} at scale 2")
+    assert one > 1e-3, "the floor is lit by the bounce"
+    assert two / one == pytest.approx(2.0, rel=0.05)

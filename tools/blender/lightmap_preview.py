@@ -21,7 +21,8 @@ the lightmap's byte encoding) multiplied into the base color by a Mix node.
   emission `albedo x E_a / pi`: the light q3map2 adds everywhere, which no lamp and no
   world colour can reach inside a closed map; and what casts no shadow in q3map2 (the
   sky, glass and other shaders that say so) casts none in Cycles, and the camera sees
-  the sky's texture, not the sky light it emits.
+  the sky's texture, not the sky light it emits; light bounced off a surface carries the
+  fit's bounce scale (the albedo every ray but the camera's sees).
 
 Usage inside Blender or with `import bpy`:
 
@@ -227,15 +228,20 @@ def game_preview(materials=None) -> int:
     return changed
 
 
-def scene_ambient_irradiance():
-    """relight's ambient irradiance (W/m^2 per channel) from the scene's custom properties
-    (`q3_relight.ambient`, imported from the glTF scene extras), or None."""
+def _relit_rgb(key: str, keep):
+    """A per-channel value of relight's scene extras (`q3_relight.KEY`, imported as the
+    scene's custom property), or None when absent or when `keep(values)` is false."""
     relit = bpy.context.scene.get("q3_relight")
-    amb = relit.get("ambient") if relit is not None else None
-    if amb is None:
+    value = relit.get(key) if relit is not None else None
+    if value is None:
         return None
-    amb = [float(v) for v in amb]
-    return amb if len(amb) == 3 and any(v > 0 for v in amb) else None
+    value = [float(v) for v in value]
+    return value if len(value) == 3 and keep(value) else None
+
+
+def scene_ambient_irradiance():
+    """relight's ambient irradiance (W/m^2 per channel), or None."""
+    return _relit_rgb("ambient", lambda v: any(x > 0 for x in v))
 
 
 def add_ambient(ambient_w_m2, materials=None) -> int:
@@ -373,16 +379,62 @@ def sky_as_seen() -> int:
     return changed
 
 
+def scene_bounce_scale():
+    """relight's fitted scale of each bounce pass (per channel), or None when the fit has
+    no bounce term."""
+    return _relit_rgb("bounce_scale", lambda v: all(x > 0 for x in v))
+
+
+def scale_bounces(scale, materials=None) -> int:
+    """Light bounced off a lit material carries relight's bounce scale: the model's pass
+    `T_{k+1} = s K rho T_k` is what Cycles computes when every ray but the camera's sees the
+    albedo `s rho` (Light Path "Is Camera Ray": the camera, and the Diffuse Color pass, still
+    see `rho`). Returns how many materials changed."""
+    changed = 0
+    sky = sky_materials()
+    for mat, bsdf, out, nodes, links in _rewirable(materials):
+        if lighting_kind(mat) == "none" or mat in sky or mat.get("q3_bounce_scaled"):
+            continue
+        base = bsdf.inputs["Base Color"]
+        src = base.links[0].from_socket if base.is_linked else None
+        scaled = nodes.new("ShaderNodeMix")
+        scaled.data_type = "RGBA"
+        scaled.blend_type = "MULTIPLY"
+        scaled.inputs["Factor"].default_value = 1.0
+        if src is not None:
+            links.new(src, scaled.inputs[6])
+        else:
+            scaled.inputs[6].default_value = base.default_value
+        scaled.inputs[7].default_value = (*scale, 1.0)
+        path = nodes.new("ShaderNodeLightPath")
+        pick = nodes.new("ShaderNodeMix")
+        pick.data_type = "RGBA"
+        links.new(path.outputs["Is Camera Ray"], pick.inputs["Factor"])
+        links.new(scaled.outputs[2], pick.inputs[6])
+        if src is not None:
+            links.new(src, pick.inputs[7])
+        else:
+            pick.inputs[7].default_value = base.default_value
+        links.new(pick.outputs[2], base)
+        mat["q3_bounce_scaled"] = True
+        changed += 1
+    return changed
+
+
 def relit_materials(materials=None, ambient: bool = True) -> int:
     """Vertex-lit materials: take the baked vertex colours out of the albedo (connect the
     base colour image straight to the BSDF); with `ambient`, relight's ambient term as
     emission (see `add_ambient`); what casts no shadow in q3map2 casts none
-    (`shadows_as_q3map2`); the camera sees the sky's texture (`sky_as_seen`). Returns how
-    many vertex-lit materials changed."""
+    (`shadows_as_q3map2`); the camera sees the sky's texture (`sky_as_seen`); bounced light
+    carries the fit's bounce scale (`scale_bounces`). Returns how many vertex-lit
+    materials changed."""
     changed = _unbake_vertex_colours(materials)
     amb = scene_ambient_irradiance() if ambient else None
     if amb is not None:
         add_ambient(amb, materials)
+    scale = scene_bounce_scale()
+    if scale is not None:
+        scale_bounces(scale, materials)
     shadows_as_q3map2()
     sky_as_seen()
     return changed
