@@ -18,7 +18,7 @@ How the frame is made, and why:
 - The camera is a spectator (no gravity, clips against the world). `setviewpos` puts the
   player at a position (eye = origin + 1 + view height 26) and then pushes it forward
   (400 units/s against the spectator's friction: about 75 units from a spawn point, the
-  same every run). Asking for a point further back to make up for it would often start
+  same every run within a unit). Asking for a point further back to make up for it would often start
   the spectator inside a wall, where it sticks; so the frame is taken where the push ends,
   after it has died out, and the pose used is always the one read back with `viewpos`.
 - The horizontal field of view is `cg_fov` 90 degrees; at a 4:3 size the engine and a
@@ -124,7 +124,8 @@ def _run_engine(engine: Path, map_name: str, requests: list[dict], width: int, h
     home = Path(tempfile.mkdtemp(prefix="q3gltf-game-"))
     game = home / "baseoa"
     game.mkdir()
-    lines = ["wait 100", "team spectator", "wait 100"]
+    # Frames to let the map load and the client enter before anything is asked of it.
+    lines = ["wait 250", "team spectator", "wait 200"]
     for i, r in enumerate(requests):
         x, y, z = r["origin"]
         lines += [f"setviewpos {x:.3f} {y:.3f} {z:.3f} {r['yaw']:.3f}", f"wait {SETTLE_FRAMES}",
