@@ -96,7 +96,7 @@ class Display:
         self.proc.wait(timeout=10)
 
 
-def _cvars(engine: Path, home: Path, width: int, height: int, extra: dict | None = None) -> list[str]:
+def _cvars(engine: Path, home: Path, width: int, height: int) -> list[str]:
     sets = {
         "com_basegame": "baseoa", "fs_basepath": str(engine), "fs_homepath": str(home),
         "com_legacyprotocol": "71", "com_protocol": "71", "com_introplayed": "1",
@@ -108,7 +108,6 @@ def _cvars(engine: Path, home: Path, width: int, height: int, extra: dict | None
         "con_notifytime": "0", "s_initsound": "0", "logfile": "2", "sv_pure": "0",
         "bot_enable": "0", "cl_motd": "0",
     }
-    sets.update(extra or {})
     args = []
     for k, v in sets.items():
         args += ["+set", k, v]
@@ -116,7 +115,7 @@ def _cvars(engine: Path, home: Path, width: int, height: int, extra: dict | None
 
 
 def _run_engine(engine: Path, map_name: str, requests: list[dict], width: int, height: int,
-                timeout_s: float, extra: dict | None = None) -> tuple[list[tuple[list[float], float]], list[Path], Path]:
+                timeout_s: float) -> tuple[list[tuple[list[float], float]], list[Path], Path]:
     """One engine run: each requested pose (origin, yaw) shot once. Returns the poses read
     back, the screenshots (in order) and the scratch folder holding them."""
     if not Path(ENGINE_BIN).exists():
@@ -132,13 +131,14 @@ def _run_engine(engine: Path, map_name: str, requests: list[dict], width: int, h
                   "viewpos", f"screenshot shot_{i:03d}", "wait 5"]
     lines += ["quit"]
     (game / "frames.cfg").write_text("\n".join(lines) + "\n")
-    cmd = [ENGINE_BIN] + _cvars(engine, home, width, height, extra) + ["+devmap", map_name, "+exec", "frames.cfg"]
+    cmd = [ENGINE_BIN] + _cvars(engine, home, width, height) + ["+devmap", map_name, "+exec", "frames.cfg"]
     with Display(width, height) as display:
         env = dict(os.environ, DISPLAY=display)
         try:
             proc = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                   timeout=timeout_s, text=True, errors="replace")
         except subprocess.TimeoutExpired:
+            shutil.rmtree(home, ignore_errors=True)
             raise SystemExit(f"the engine did not finish {map_name} in {timeout_s:.0f} s")
     log = proc.stdout
     poses = []
@@ -151,6 +151,7 @@ def _run_engine(engine: Path, map_name: str, requests: list[dict], width: int, h
     missing = [s.name for s in shots if not s.exists()]
     if proc.returncode != 0 or missing or len(poses) != len(requests):
         tail = "\n".join(log.splitlines()[-25:])
+        shutil.rmtree(home, ignore_errors=True)
         raise SystemExit(f"the engine failed on {map_name} (exit {proc.returncode}, {len(poses)} of "
                          f"{len(requests)} poses read back, missing {missing}):\n{tail}")
     return poses, shots, home
