@@ -393,9 +393,11 @@ fn a_real_map_charted_anew_keeps_its_density_never_bleeds_and_reads_back_exactly
     assert!(b["rel_error"].is_null(), "no original to compare with: {}", b["rel_error"]);
     assert_eq!(b["pages"].as_array().unwrap().len(), 1, "one page, the new atlas: {}", b["pages"]);
     assert!(b["pages"][0]["new"].as_bool().unwrap() && b["pages"][0]["residual_rms"].is_null());
-    // Measured 2026-11-23: 132669 texels against the original layout's 131246.
+    // Measured 2026-11-23: 151718 texels against the original layout's 143991 (+5.4%; the
+    // texel size is the same, 0.214 m: the 977 charts' edges hold more texel centres than
+    // the map's own blocks; before the edge rows were kept, 132667 against 131246).
     let texels = b["luxels"].as_f64().unwrap();
-    assert!((texels / luxels - 1.0).abs() < 0.05, "new atlas {texels} texels, original {luxels}");
+    assert!((texels / luxels - 1.0).abs() < 0.08, "new atlas {texels} texels, original {luxels}");
     assert!(a["primitives"].as_u64().unwrap() > 10 && a["charts"].as_u64().unwrap() > 100, "{a}");
     let (charts, read) = atlas_charts_never_share_a_filtered_texel(&out.join("baked.glb"));
     assert!(charts > 100 && read as f64 > texels, "{charts} charts read {read} texels");

@@ -387,7 +387,9 @@ fn light_box(mesh: &crate::scene::Mesh, rows: &Rows) -> (glam::Vec3, glam::Vec3)
 fn luxel_rows(scene: &Scene, tg: &projection::Target, bvh: &Bvh) -> luxel::Luxels {
     let (lo, hi) = scene.mesh.bounds();
     let mut lx = luxel::rows(scene, tg, (hi - lo).length());
+    luxel::nudge_out_of_solid(&mut lx, scene, bvh);
     luxel::drop_buried(&mut lx, scene, bvh);
+    lx.stats.on_solid_plane = luxel::mark_solid_ahead(&mut lx.rows, scene, bvh);
     lx
 }
 
@@ -753,9 +755,18 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The final state exactly: the fit re-traces a light only once it has moved more than
     // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
     // every light where it is and refit the linear coefficients for it.
+    // The exact linear fit leaves censored channels out, so where most of the data is
+    // censored it can be worse than what the phases reached: then the traced state is kept
+    // with the phases' coefficients (a step never ends worse than it began).
     if !fit.out_of_time() {
         fit.retrace_tol = 0.0;
+        let kept = fit.model.clone();
+        fit.refresh_visibility();
+        let before = fit.eval().f;
         fit.fit_linear();
+        if !(fit.eval().f <= before) {
+            fit.model = kept;
+        }
     }
     let final_eval = fit.eval();
     if let Some(e) = fit.failure.take() {

@@ -293,6 +293,13 @@ pub struct Relit {
 pub mod q3map2 {
     /// A luxel's sample origin lies this far off the surface, along its normal.
     pub const SAMPLE_OFFSET_UNITS: f32 = 1.0;
+    /// A point this close to a plane of the BSP counts as on its open side
+    /// (`PointInLeafNum`); a sample origin further behind a wall is in solid and is nudged
+    /// ([`NUDGE_TEXELS`]).
+    pub const PLANE_EPSILON_UNITS: f32 = 0.1;
+    /// A sample origin in solid is moved this many texels along the lightmap's axes, trying
+    /// in order left, right, up, down, then the four diagonals (`MapSingleLuxel`).
+    pub const NUDGE_TEXELS: f32 = 0.5;
     /// A shadow ray ignores geometry this close to the sample origin.
     pub const INHIBIT_RADIUS_UNITS: f32 = 1.5;
     /// Point and spot lights: the distance in the inverse square is at least this.

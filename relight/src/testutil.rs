@@ -77,6 +77,7 @@ pub fn room(n: usize) -> (Mesh, Rows) {
             weight: if censored { [0.0, 1.0, 0.5] } else { [1.0; 3] },
             lower: if censored { [0.4, 0.0, 0.3] } else { [0.0; 3] },
             area: area[i],
+            solid_ahead: crate::rows::SolidAhead::NONE,
         });
     }
     rows.finish();

@@ -21,6 +21,9 @@ use rayon::prelude::*;
 use super::Fitter;
 use crate::model::{lights, Model};
 
+/// Most refits of the linear coefficients while the rows at the minlight floor change.
+pub const MINLIGHT_ROUNDS: usize = 8;
+
 /// Most columns pushed through a non-local chain exactly.
 pub const DENSE_COLUMNS: usize = 64;
 
@@ -132,15 +135,29 @@ impl Fitter<'_> {
         if self.failure.is_some() {
             return f64::NAN;
         }
-        // Twice: the rows held at the minlight floor depend on the coefficients.
-        let rounds = if self.model.minlight.is_some() { 2 } else { 1 };
-        for _ in 0..rounds {
+        if self.model.minlight.is_none() {
+            self.fit_linear_once();
+            return if self.failure.is_some() { f64::NAN } else { self.eval().rel_error };
+        }
+        // The rows held at the minlight floor depend on the coefficients: refitted until
+        // the error stops falling (a fixed point of the floor set), the best kept.
+        let mut best: Option<(f64, crate::model::Model)> = None;
+        for _ in 0..MINLIGHT_ROUNDS {
             self.fit_linear_once();
             if self.failure.is_some() {
                 return f64::NAN;
             }
+            let e = self.eval().rel_error;
+            match &best {
+                Some((b, _)) if !(e < *b - 1e-6) => break,
+                _ => best = Some((e, self.model.clone())),
+            }
         }
-        self.eval().rel_error
+        let (e, m) = best.expect("one round at least");
+        if self.model != m {
+            self.model = m;
+        }
+        e
     }
 
     fn fit_linear_once(&mut self) {

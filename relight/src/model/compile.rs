@@ -26,7 +26,7 @@ use std::collections::HashMap;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::rows::Rows;
+use crate::rows::{Rows, SolidAhead};
 use crate::trace::bvh::Bvh;
 
 /// A sparse linear operator on the rows: `y_i = sum_k w_ik x_{j_ik}` (CSR).
@@ -153,9 +153,15 @@ fn dirt_vectors() -> Vec<[f32; 3]> {
     v
 }
 
+/// How far behind its sample each dirt (and bounce) ray starts, m (see [`dirt_gather`]).
+pub const START_BACK_M: f32 = 1e-4;
+
 /// The occlusion gathered at one sample: `sum (1 - hit distance / depth)` over the 48
 /// directions and the normal, for hits within `depth`.
-pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32) -> f32 {
+///
+/// From a point on a wall's plane with the wall on Quake's positive side, the rays along
+/// that wall stop at once too ([`SolidAhead`], `on_epsilon` m).
+pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32, ahead: SolidAhead, on_epsilon: f32) -> f32 {
     // q3map2's tangent frame: right = n x up (Quake's Z is glTF's Y), up = right x n.
     let world_up = Vec3::Y;
     let (right, up) = if n.x == 0.0 && n.z == 0.0 && n.y.abs() == 1.0 {
@@ -169,8 +175,18 @@ pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32) -> f32 {
     let mut g = 0.0;
     for v in dirt_vectors().iter().chain(std::iter::once(&[0.0, 0.0, 1.0])) {
         let d = right * v[0] + up * v[1] + n * v[2];
-        if let Some((t, _)) = bvh.first_hit(x, d * depth, 1.0) {
-            g += 1.0 - t;
+        if on_epsilon > 0.0 && ahead.stops(d, depth, on_epsilon) {
+            g += 1.0;
+            continue;
+        }
+        // Started a hair behind the sample: a sample on a wall's plane (the edge row of a
+        // face where it meets the wall) is occluded at distance 0 in that wall's direction,
+        // as q3map2's BSP trace finds it; the plane the ray leaves does not stop it.
+        let back = START_BACK_M.max(x.abs().max_element() * 8.0 * f32::EPSILON);
+        let reach = depth + back;
+        if let Some((t, _)) = bvh.first_hit_entering(x - d * back, d * reach, 2.0 * back / reach, 1.0) {
+            let dist = (t * reach - back).max(0.0);
+            g += 1.0 - dist / depth;
         }
     }
     g
@@ -183,7 +199,7 @@ pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], set: &DirtSetting
     let raw: Vec<f32> = (0..rows.len())
         .into_par_iter()
         .map(|i| {
-            let g = dirt_gather(bvh, rows.pos[i], rows.normal[i], set.depth);
+            let g = dirt_gather(bvh, rows.pos[i], rows.normal[i], set.depth, rows.solid_ahead[i], rows.sampling.on_epsilon);
             if g <= 0.0 {
                 return 1.0;
             }
@@ -225,6 +241,44 @@ mod tests {
             let b: f64 = (0..3).map(|i| sty[i][c] * x[i][c]).sum();
             assert!((a - b).abs() < 1e-12, "<y, Sx> = <S^T y, x>: {a} vs {b}");
         }
+    }
+
+    /// A 10 m square wall through the origin, facing `w`.
+    fn wall(w: Vec3) -> crate::scene::Mesh {
+        let mut m = crate::scene::Mesh::default();
+        let t1 = Vec3::Y;
+        let t2 = w.cross(t1).normalize();
+        for (a, b) in [(-5.0, -5.0), (5.0, -5.0), (5.0, 5.0), (-5.0, 5.0)] {
+            m.positions.push(t1 * a + t2 * b);
+        }
+        // (t1 x t2) = -w for this order; wind the other way so the face looks along w.
+        let flip = t1.cross(t2).dot(w) < 0.0;
+        m.triangles = if flip { vec![[0, 2, 1], [0, 3, 2]] } else { vec![[0, 1, 2], [0, 2, 3]] };
+        m
+    }
+
+    #[test]
+    fn a_sample_on_a_walls_plane_is_occluded_at_distance_zero_toward_it() {
+        // q3map2's BSP trace stops a dirt ray from a point on a wall's plane at once when it
+        // heads into the wall (its edge rows' raw dirt: 21 of the 49 rays on the oracle's
+        // -dirtdebug lightmap), and lets the rays leaving the plane go. The wall is turned
+        // 10 degrees so that no ray runs along it.
+        let w = Vec3::new(10f32.to_radians().cos(), 0.0, 10f32.to_radians().sin());
+        let bvh = Bvh::build(&wall(w));
+        let n = Vec3::Y;
+        let depth = 3.25;
+        // Off the quad's diagonal (a ray through the shared edge of two triangles can slip
+        // between them).
+        let x = Vec3::new(0.0, 0.7, 0.0);
+        let g = dirt_gather(&bvh, x, n, depth, SolidAhead::NONE, 0.0);
+        // The directions as dirt_gather builds them for the normal +Y.
+        let (right, up) = (Vec3::X, Vec3::NEG_Z);
+        let into = dirt_vectors().iter().filter(|v| (right * v[0] + up * v[1] + n * v[2]).dot(w) < 0.0).count();
+        assert!(into > 15, "{into}");
+        assert!((g - into as f32).abs() < 1e-3, "gathered {g}, expected {into} rays at distance 0");
+        // Moved off the plane into the open, the same rays hit at a distance.
+        let g_off = dirt_gather(&bvh, x + w * 0.5, n, depth, SolidAhead::NONE, 0.0);
+        assert!(g_off > 0.0 && g_off < g, "{g_off} vs {g}");
     }
 
     #[test]

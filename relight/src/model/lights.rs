@@ -301,7 +301,7 @@ mod tests {
     /// Below the falloff tolerance a light adds nothing; above it, everything.
     #[test]
     fn falloff_cuts_weak_contributions() {
-        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.05, spot_ramp: 0.8 };
+        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.05, spot_ramp: 0.8, on_epsilon: 0.0 };
         let x = Vec3::ZERO;
         let n = Vec3::Y;
         // g at 2 m straight above = 1/4: I = 0.21 gives 0.0525 > 0.05, I = 0.19 gives 0.0475.

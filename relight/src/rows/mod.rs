@@ -47,12 +47,16 @@ pub struct Sampling {
     pub falloff: f32,
     /// Width of a spot light's soft edge, m (q3map2: 32 units).
     pub spot_ramp: f32,
+    /// A segment starting on a plane that ends no further than this on its open side
+    /// counts as running along it, m (q3map2's `TRACE_ON_EPSILON`, 0.1 unit; see
+    /// [`SolidAhead`]).
+    pub on_epsilon: f32,
 }
 
 impl Sampling {
     /// Plain physical sampling for a scene of this diagonal (m): no cut, tiny offsets.
     pub fn plain(scene_diagonal: f32) -> Sampling {
-        Sampling { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), inhibit: 0.0, falloff: 0.0, spot_ramp: 32.0 * 0.0254 }
+        Sampling { eps: (1e-3 * scene_diagonal).max(0.01), ray_offset: (1e-5 * scene_diagonal).max(1e-3), inhibit: 0.0, falloff: 0.0, spot_ramp: 32.0 * 0.0254, on_epsilon: 0.0 }
     }
 
     /// q3map2's sampling for a scene of `units_m` meters per Quake unit whose lightmaps
@@ -62,7 +66,7 @@ impl Sampling {
     pub fn q3map2(scene_diagonal: f32, units_m: f32, overbright_bits: u32) -> Sampling {
         use crate::scene::q3map2::*;
         let falloff = (FALLOFF_TOLERANCE_BYTES as f64 * std::f64::consts::PI * q3gltf_convert::units::e_per_byte(overbright_bits)) as f32;
-        Sampling { eps: MIN_DISTANCE_UNITS * units_m, inhibit: INHIBIT_RADIUS_UNITS * units_m, falloff, spot_ramp: SPOT_RAMP_UNITS * units_m, ..Sampling::plain(scene_diagonal) }
+        Sampling { eps: MIN_DISTANCE_UNITS * units_m, inhibit: INHIBIT_RADIUS_UNITS * units_m, falloff, spot_ramp: SPOT_RAMP_UNITS * units_m, on_epsilon: PLANE_EPSILON_UNITS * units_m, ..Sampling::plain(scene_diagonal) }
     }
 }
 
@@ -88,6 +92,8 @@ pub struct Rows {
     pub lower: Vec<[f32; 3]>,
     /// Row area A_i, m^2.
     pub area: Vec<f32>,
+    /// Directions along which the row's sample point touches solid ([`SolidAhead`]).
+    pub solid_ahead: Vec<SolidAhead>,
     pub sampling: Sampling,
     /// `sum A w mid^2`, the error's denominator (0 only without data).
     pub norm2: f64,
@@ -107,6 +113,31 @@ pub struct Row {
     pub weight: [f32; 3],
     pub lower: [f32; 3],
     pub area: f32,
+    pub solid_ahead: SolidAhead,
+}
+
+/// The axial planes of solid a sample point lies on (within q3map2's `TRACE_ON_EPSILON`)
+/// whose solid side is their positive side in Quake's axes, as bits: 1 `+x`, 2 `+y`,
+/// 4 `-z` (glTF axes: Quake's `+x`, `+z`, `+y`). q3map2's BSP puts a segment that starts
+/// on such a plane and does not end more than 0.1 unit on its open side into the solid
+/// child: a ray running along a wall whose brush lies on the positive side is stopped at
+/// once (a face's edge row where it meets that wall: its dirt, its sky). The BSP keeps
+/// only the positive plane of each axial pair, so a wall on the negative side lets the
+/// same ray go.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SolidAhead(pub u8);
+
+impl SolidAhead {
+    pub const NONE: SolidAhead = SolidAhead(0);
+
+    /// The unit directions (glTF axes) towards the solid of each bit.
+    pub const DIRECTIONS: [(u8, Vec3); 3] = [(1, Vec3::X), (2, Vec3::Y), (4, Vec3::NEG_Z)];
+
+    /// Whether the segment `d * length` from the point goes into that solid at once:
+    /// it ends on no plane's open side by more than `on_epsilon` (same units as `length`).
+    pub fn stops(self, d: Vec3, length: f32, on_epsilon: f32) -> bool {
+        self.0 != 0 && Self::DIRECTIONS.iter().any(|&(bit, axis)| self.0 & bit != 0 && d.dot(axis) * length >= -on_epsilon)
+    }
 }
 
 impl Rows {
@@ -139,6 +170,7 @@ impl Rows {
         self.weight.push(r.weight);
         self.lower.push(r.lower);
         self.area.push(r.area);
+        self.solid_ahead.push(r.solid_ahead);
     }
 
     pub fn row(&self, i: usize) -> Row {
@@ -154,6 +186,7 @@ impl Rows {
             weight: self.weight[i],
             lower: self.lower[i],
             area: self.area[i],
+            solid_ahead: self.solid_ahead[i],
         }
     }
 
@@ -255,11 +288,27 @@ mod tests {
     }
 
     #[test]
+    fn a_ray_along_a_positive_wall_stops_and_along_a_negative_one_goes() {
+        // On the plane of a wall whose solid is at +x (glTF and Quake): rays that do not
+        // leave it by more than 0.1 unit towards -x stop, as q3map2's BSP sends them into
+        // the solid child; a wall at -x (bit not set) stops nothing.
+        let plus_x = SolidAhead(1);
+        let (len, eps) = (128.0, 0.1);
+        assert!(plus_x.stops(Vec3::X, len, eps), "into the wall");
+        assert!(plus_x.stops(Vec3::Y, len, eps), "along it");
+        assert!(plus_x.stops(Vec3::new(-4e-8, 1.0, 0.0).normalize(), len, eps), "along it, within float");
+        assert!(!plus_x.stops(Vec3::new(-0.01, 1.0, 0.0).normalize(), len, eps), "1.28 units off it into the open");
+        assert!(!SolidAhead::NONE.stops(Vec3::X, len, eps));
+        // Quake's +y is glTF's -z.
+        assert!(SolidAhead(4).stops(Vec3::new(1.0, 0.0, 0.0), len, eps) && !SolidAhead(4).stops(Vec3::Z, len, eps));
+    }
+
+    #[test]
     fn retain_and_subsample_keep_rows_whole() {
         let mut rows = Rows::new(Sampling::plain(1.0));
         for k in 0..10 {
             let v = k as f32;
-            rows.push(Row { vertex: k, material: 0, texel: [u32::MAX; 3], pos: Vec3::splat(v), normal: Vec3::Y, albedo: [v; 3], lo: [v; 3], hi: [v + 1.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0 });
+            rows.push(Row { vertex: k, material: 0, texel: [u32::MAX; 3], pos: Vec3::splat(v), normal: Vec3::Y, albedo: [v; 3], lo: [v; 3], hi: [v + 1.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: SolidAhead::NONE });
         }
         rows.finish();
         let (sub, take) = rows.subsample(5, 1);

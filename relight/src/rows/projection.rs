@@ -317,6 +317,7 @@ pub fn rows(mesh: &Mesh, tg: &Target, sampling: Sampling) -> Rows {
                 weight: tg.weight[v],
                 lower: tg.lower[v],
                 area: tg.area[v],
+                solid_ahead: crate::rows::SolidAhead::NONE,
             });
         }
     }

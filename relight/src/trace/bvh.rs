@@ -153,6 +153,18 @@ impl Bvh {
 
     /// Nearest hit along `o + s d` with `s` in `(t_min, t_max)`.
     pub fn first_hit_after(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(f32, u32)> {
+        self.first_hit_where(o, d, t_min, t_max, |_, _| true)
+    }
+
+    /// Nearest hit along `o + s d`, `s` in `(0, t_max)`, where a triangle met from behind
+    /// (its winding normal along `d`) counts only beyond `s = grace`: a ray started a hair
+    /// behind a point on a wall's plane enters the wall there, but does not stop at the
+    /// plane it leaves.
+    pub fn first_hit_entering(&self, o: Vec3, d: Vec3, grace: f32, t_max: f32) -> Option<(f32, u32)> {
+        self.first_hit_where(o, d, 0.0, t_max, |tri, t| t > grace || Vec3::from_slice(&tri.e1[..3]).cross(Vec3::from_slice(&tri.e2[..3])).dot(d) < 0.0)
+    }
+
+    fn first_hit_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, accept: impl Fn(&Tri, f32) -> bool) -> Option<(f32, u32)> {
         let inv = d.recip();
         let mut best: Option<(f32, u32)> = None;
         let mut limit = t_max;
@@ -169,7 +181,7 @@ impl Bvh {
                 let first = node.right_or_first as usize;
                 for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
                     if let Some(t) = intersect(tri, o, d) {
-                        if t > t_min && t < limit {
+                        if t > t_min && t < limit && accept(tri, t) {
                             limit = t;
                             best = Some((t, self.tri_index[first + k]));
                         }
@@ -191,8 +203,41 @@ impl Bvh {
 
     /// Distance from `p` to the nearest triangle and the nearest point (meters).
     pub fn nearest(&self, p: Vec3) -> Option<(f32, Vec3)> {
-        let mut best: Option<(f32, Vec3)> = None;
+        self.nearest_triangle(p).map(|(d, c, _)| (d, c))
+    }
+
+    /// Every triangle within `r` of `p` (mesh index), in no particular order.
+    pub fn within(&self, p: Vec3, r: f32) -> Vec<u32> {
+        let mut out = Vec::new();
+        let r2 = r * r;
+        self.visit_near(p, r2, |t, _, d2| {
+            if d2 <= r2 {
+                out.push(t);
+            }
+            r2
+        });
+        out
+    }
+
+    /// [`Bvh::nearest`] with the nearest triangle's index in the mesh.
+    pub fn nearest_triangle(&self, p: Vec3) -> Option<(f32, Vec3, u32)> {
+        let mut best: Option<(f32, Vec3, u32)> = None;
         let mut best_d2 = f32::INFINITY;
+        self.visit_near(p, f32::INFINITY, |t, c, d2| {
+            if d2 < best_d2 {
+                best_d2 = d2;
+                best = Some((d2.sqrt(), c, t));
+            }
+            best_d2
+        });
+        best
+    }
+
+    /// Visits the triangles in the leaves whose boxes lie within the bound (a squared
+    /// distance, m^2) of `p`, with their mesh index, closest point and squared distance;
+    /// `visit` returns the bound for the rest of the walk (a nearest search shrinks it).
+    fn visit_near(&self, p: Vec3, bound2: f32, mut visit: impl FnMut(u32, Vec3, f32) -> f32) {
+        let mut bound2 = bound2;
         let mut stack = vec![0u32];
         while let Some(i) = stack.pop() {
             if self.tris.is_empty() {
@@ -200,26 +245,21 @@ impl Bvh {
             }
             let node = &self.nodes[i as usize];
             let q = p.clamp(Vec3::from(node.min), Vec3::from(node.max));
-            if (q - p).length_squared() >= best_d2 {
+            if (q - p).length_squared() > bound2 {
                 continue;
             }
             if node.count > 0 {
                 let first = node.right_or_first as usize;
-                for tri in &self.tris[first..first + node.count as usize] {
+                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
                     let a = Vec3::from_slice(&tri.v0);
                     let c = closest_on_triangle(p, a, a + Vec3::from_slice(&tri.e1), a + Vec3::from_slice(&tri.e2));
-                    let d2 = (c - p).length_squared();
-                    if d2 < best_d2 {
-                        best_d2 = d2;
-                        best = Some((d2.sqrt(), c));
-                    }
+                    bound2 = visit(self.tri_index[first + k], c, (c - p).length_squared());
                 }
             } else {
                 stack.push(node.right_or_first);
                 stack.push(i + 1);
             }
         }
-        best
     }
 }
 
