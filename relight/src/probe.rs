@@ -91,7 +91,7 @@ pub fn probe(input: &std::path::Path, point: DVec3, normal: DVec3) -> Result<Pro
     }
     let sky: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
     for sun in &scene.suns {
-        if sun_visible_from(&bvh, x, n, sun.to_sun, &s, &sky) {
+        if sun_visible_from(&bvh, x, n, sun.to_sun, &s, &sky, crate::rows::SolidAhead::NONE) {
             let c = n.dot(sun.to_sun).max(0.0) as f64;
             for k in 0..3 {
                 e[k] += sun.color[k] as f64 * sun.intensity_lux as f64 / LM_PER_W * c;

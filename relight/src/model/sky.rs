@@ -44,7 +44,7 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
             let mut s = 0.0f32;
             for &w in dirs {
                 let c = rows.normal[i].dot(w);
-                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], rows.normal[i], w, &rows.sampling, sky) {
+                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], rows.normal[i], w, &rows.sampling, sky, rows.solid_ahead[i]) {
                     s += c;
                 }
             }

@@ -100,9 +100,13 @@ impl Visibility {
 /// `t`), as q3map2 decides (a Quake map is sealed: sunlight comes in through sky
 /// surfaces only; a ray that leaves through a gap of the converted mesh brings nothing).
 /// A scene without sky surfaces (a glTF from elsewhere) is open: a ray that escapes sees
-/// the sun.
-pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool]) -> bool {
+/// the sun. From a point on a wall's plane with its brush on Quake's positive side, a sun
+/// exactly along the wall is not seen ([`crate::rows::SolidAhead::along`]).
+pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], ahead: crate::rows::SolidAhead) -> bool {
     if !(n.dot(to_sun) > 0.0) {
+        return false;
+    }
+    if s.on_epsilon > 0.0 && ahead.along(to_sun) {
         return false;
     }
     let reach = bvh.reach();
@@ -122,7 +126,7 @@ pub fn trace_sun(bvh: &Bvh, pb: &Rows, to_sun: Vec3, sky: &[bool]) -> Vec<u32> {
             let mut word = 0u32;
             for b in 0..32.min(n - w * 32) {
                 let i = w * 32 + b;
-                if sun_visible_from(bvh, pb.pos[i], pb.normal[i], to_sun, &pb.sampling, sky) {
+                if sun_visible_from(bvh, pb.pos[i], pb.normal[i], to_sun, &pb.sampling, sky, pb.solid_ahead[i]) {
                     word |= 1 << b;
                 }
             }
