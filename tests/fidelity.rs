@@ -63,8 +63,8 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 
 /// (fixture, largest relative error, what the recorded compile must have switched on).
 /// Measured on 2026-11-23: point 0.0000, pillar 0.0016, offgrid 0.0039, near_wall 0.0002,
-/// spot 0.0000, surface 0.0031, sun 0.0000, skylight 0.0399, skylight_bright 0.0469,
-/// bounce 0.0454, dirt 0.0059, filter 0.0004, gamma 0.0018, minlight 0.0013, combo 0.0203.
+/// spot 0.0000, surface 0.0031, sun 0.0000, skylight 0.0346, skylight_bright 0.0388,
+/// bounce 0.0457, dirt 0.0049, filter 0.0028, gamma 0.0018, minlight 0.0013, combo 0.0216.
 const FIXTURES: [(&str, f64, &[&str]); 15] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
@@ -73,11 +73,11 @@ const FIXTURES: [(&str, f64, &[&str]); 15] = [
     ("spot", 0.005, &[]),
     ("surface", 0.01, &[]),
     ("sun", 0.005, &[]),
-    ("skylight", 0.05, &[]),
-    ("skylight_bright", 0.06, &[]),
+    ("skylight", 0.045, &[]),
+    ("skylight_bright", 0.05, &[]),
     ("bounce", 0.055, &["bounce"]),
     ("dirt", 0.01, &["dirt"]),
-    ("filter", 0.003, &["filter"]),
+    ("filter", 0.005, &["filter"]),
     ("gamma", 0.005, &[]),
     ("minlight", 0.005, &[]),
     ("combo", 0.03, &["bounce", "dirt", "filter"]),
@@ -136,7 +136,7 @@ fn bsp_lightmaps(path: &Path) -> Vec<u8> {
 /// dirt fixture compiled with `-dirtdebug` (q3map2 writes 255 x its factor as the
 /// lightmap) and `-nocollapse` (the same pages). convert puts a one-texel border around a
 /// page, so texel (x, y) of ours is (x - 1, y - 1) of the BSP's.
-/// Measured on 2026-11-23: mean difference 0.0026, 99.2% of the luxels within 0.05. The
+/// Measured on 2026-11-23: mean difference 0.0026, 99.4% of the luxels within 0.05. The
 /// edge rows where a face meets a wall sit on the wall's plane: they see it at distance 0
 /// (with the rays started at the sample instead, the mean was 0.038), and q3map2's BSP
 /// trace also stops the rays along a wall whose solid is on its positive side
@@ -175,7 +175,7 @@ fn dirt_factors_are_q3map2s_own() {
 
 /// (map, largest relative error): the shipped BSPs of the truth set with their own source
 /// lights, only the global terms fitted. Measured on 2026-11-23 (the README's table):
-/// 0.2712, 0.1792, 0.2628, 0.1519, 0.1052.
+/// 0.2656, 0.1789, 0.2555, 0.1520, 0.1045.
 const TRUTH_SET: [(&str, f64); 5] = [("oacmpdm1", 0.30), ("oacmpdm2", 0.21), ("oacmpdm3", 0.30), ("oacmpdm4", 0.18), ("oacmpctf1", 0.13)];
 
 #[test]

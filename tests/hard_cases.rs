@@ -322,10 +322,12 @@ fn degenerate_tiny_huge_and_duplicate_geometry() {
         assert!(e <= e0 * 1.1 + 1e-3, "{backend} {extra:?}: error {e} with the degenerate geometry, {e0} without");
         if extra.contains(&"luxel") || !extra.contains(&"vertex") {
             let l = &r["luxel"];
-            // The same luxels, up to a texel whose sample point sits on an edge and moves by
-            // f32 rounding when the origin moves (measured: 1 of 6737).
+            // The same luxels, up to the faces' edge rows: their sample points sit on the
+            // planes of the walls they meet, where whether a point is buried is a vote of
+            // rays that start on the plane, which f32 rounding flips when the origin moves
+            // (measured: 72 of 7651; 1 of 6737 before the edge rows were kept).
             let (n, n0) = (l["luxels"].as_i64().unwrap(), p["luxel"]["luxels"].as_i64().unwrap());
-            assert!((n - n0).abs() * 1000 <= n0, "{backend}: {n} luxels with the degenerate geometry, {n0} without");
+            assert!((n - n0).abs() * 1000 <= 15 * n0, "{backend}: {n} luxels with the degenerate geometry, {n0} without");
             assert!(l["triangles_refused"].as_u64().unwrap() + l["triangles_without_luxel"].as_u64().unwrap() >= 5, "{backend}: {l}");
         }
     }
