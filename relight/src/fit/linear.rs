@@ -154,9 +154,7 @@ impl Fitter<'_> {
             }
         }
         let (e, m) = best.expect("one round at least");
-        if self.model != m {
-            self.model = m;
-        }
+        self.model = m;
         e
     }
 

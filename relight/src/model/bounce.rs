@@ -144,22 +144,18 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize) -> (
                 Some(e) => e.1 += w,
                 None => acc.push((j, w)),
             };
-            // Rays start a hair behind the origin: a row on another surface's plane (the
-            // edge row of a wall under a ceiling) sees that surface over half its
-            // hemisphere, from distance 0 (see `Bvh::first_hit_entering`).
-            let back = crate::model::compile::START_BACK_M.max(o.abs().max_element() * 8.0 * f32::EPSILON);
-            let start = |d: Vec3| o - d * back;
             for cell in 0..m {
                 let d = cosine_direction(n, i as u32, cell, s);
-                let Some((t, tri)) = bvh.first_hit_entering(start(d), d * (reach + back), 2.0 * back / (reach + back), 1.0) else { continue };
-                let t = (t * (reach + back) - back).max(0.0) / reach;
+                // A row on another surface's plane (the edge row of a wall under a
+                // ceiling) sees that surface over half its hemisphere, from distance 0.
+                let Some((dist, tri)) = bvh.first_hit_from_plane(o, d, reach) else { continue };
                 let tri = tri as usize;
                 let [ia, ib, ic] = mesh.triangles[tri].map(|v| v as usize);
                 let (a, b, c) = (mesh.positions[ia], mesh.positions[ib], mesh.positions[ic]);
                 if (b - a).cross(c - a).dot(d) >= 0.0 {
                     continue; // the back of a surface
                 }
-                let bc = barycentric(o + d * (reach * t), a, b, c);
+                let bc = barycentric(o + d * dist, a, b, c);
                 let mat = &scene.materials[mesh.tri_material[tri] as usize];
                 match (mat.lighting, mat.lightmap) {
                     (Lighting::Lightmap, Some(lm)) => {

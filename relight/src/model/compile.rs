@@ -153,9 +153,6 @@ fn dirt_vectors() -> Vec<[f32; 3]> {
     v
 }
 
-/// How far behind its sample each dirt (and bounce) ray starts, m (see [`dirt_gather`]).
-pub const START_BACK_M: f32 = 1e-4;
-
 /// The occlusion gathered at one sample: `sum (1 - hit distance / depth)` over the 48
 /// directions and the normal, for hits within `depth`.
 ///
@@ -179,13 +176,9 @@ pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32, ahead: SolidAhead, o
             g += 1.0;
             continue;
         }
-        // Started a hair behind the sample: a sample on a wall's plane (the edge row of a
-        // face where it meets the wall) is occluded at distance 0 in that wall's direction,
-        // as q3map2's BSP trace finds it; the plane the ray leaves does not stop it.
-        let back = START_BACK_M.max(x.abs().max_element() * 8.0 * f32::EPSILON);
-        let reach = depth + back;
-        if let Some((t, _)) = bvh.first_hit_entering(x - d * back, d * reach, 2.0 * back / reach, 1.0) {
-            let dist = (t * reach - back).max(0.0);
+        // A sample on a wall's plane (the edge row of a face where it meets the wall) is
+        // occluded at distance 0 in that wall's direction, as q3map2's BSP trace finds it.
+        if let Some((dist, _)) = bvh.first_hit_from_plane(x, d, depth) {
             g += 1.0 - dist / depth;
         }
     }

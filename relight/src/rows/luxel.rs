@@ -61,8 +61,8 @@ pub struct LuxelStats {
     /// Luxels left out because their sample point is buried in solid geometry (see
     /// [`drop_buried`]): q3map2 filled them from elsewhere and the game never shows them.
     pub buried: usize,
-    /// Luxels whose sample point touched a wall and was nudged off it (see
-    /// [`nudge_out_of_solid`]), as q3map2 did.
+    /// Luxels whose sample point lay just behind a wall and was nudged out (see
+    /// [`nudge_out_of_solid`]), as q3map2 does.
     pub nudged: usize,
     /// Luxels whose sample point lies on a wall's plane with the wall on Quake's positive
     /// side ([`mark_solid_ahead`]).
@@ -191,7 +191,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 if !pos.is_finite() || !hi.iter().all(|v| v.is_finite()) {
                     continue;
                 }
-                let base = Row { vertex: u32::MAX, material: mesh.tri_material[t], texel: [lm_index as u32, x as u32, y as u32], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area: texel_area, solid_ahead: crate::rows::SolidAhead::NONE };
+                let base = Row { vertex: u32::MAX, material: mesh.tri_material[t], texel: [lm_index as u32, x as u32, y as u32], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area: texel_area, solid_ahead: SolidAhead::NONE };
                 if censored {
                     // Every channel of a clamped texel is a lower bound (q3map2 kept its hue).
                     st.censored += 1;
@@ -215,7 +215,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
         let has = (0..3).any(|c| vertex_target.weight[v][c] > 0.0 || vertex_target.lower[v][c] > 0.0);
         if has {
             let t = vertex_target;
-            pb.push(Row { vertex: v as u32, material: mesh.v_material[v], texel: [u32::MAX; 3], pos: mesh.positions[v], normal: mesh.normals[v], albedo: t.albedo[v], lo: t.value[v], hi: t.hi[v], weight: t.weight[v], lower: t.lower[v], area: t.area[v], solid_ahead: crate::rows::SolidAhead::NONE });
+            pb.push(Row { vertex: v as u32, material: mesh.v_material[v], texel: [u32::MAX; 3], pos: mesh.positions[v], normal: mesh.normals[v], albedo: t.albedo[v], lo: t.value[v], hi: t.hi[v], weight: t.weight[v], lower: t.lower[v], area: t.area[v], solid_ahead: SolidAhead::NONE });
             st.vertex_rows += 1;
             texel_axes.push([Vec3::ZERO; 2]);
         }
@@ -285,8 +285,8 @@ fn in_solid(mesh: &crate::scene::Mesh, double_sided: &[bool], bvh: &Bvh, x: Vec3
 }
 
 /// q3map2's nudge (`MapSingleLuxel`): a luxel whose sample point is in solid (a face
-/// that runs on under a wall, its texel centre a few units inside) is sampled instead half a texel away
-/// along the lightmap's axes, the first of left, right, up, down and the four diagonals
+/// that runs on under a wall, its texel centre a few units inside) is sampled instead
+/// half a texel away along the lightmap's axes, the first of left, right, up, down and the four diagonals
 /// that is clear; light, shadows and dirt are all evaluated there. Points no nudge frees
 /// stay (then [`drop_buried`] decides). Returns how many moved.
 pub fn nudge_out_of_solid(lx: &mut Luxels, scene: &Scene, bvh: &Bvh) -> usize {

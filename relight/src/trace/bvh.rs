@@ -65,6 +65,9 @@ impl Aabb {
     }
 }
 
+/// How far behind its origin [`Bvh::first_hit_from_plane`] starts a ray, m.
+pub const START_BACK_M: f32 = 1e-4;
+
 impl Bvh {
     /// Builds over every non-degenerate triangle of the mesh, with exact hit tests.
     pub fn build(mesh: &Mesh) -> Bvh {
@@ -156,12 +159,19 @@ impl Bvh {
         self.first_hit_where(o, d, t_min, t_max, |_, _| true)
     }
 
-    /// Nearest hit along `o + s d`, `s` in `(0, t_max)`, where a triangle met from behind
-    /// (its winding normal along `d`) counts only beyond `s = grace`: a ray started a hair
-    /// behind a point on a wall's plane enters the wall there, but does not stop at the
-    /// plane it leaves.
-    pub fn first_hit_entering(&self, o: Vec3, d: Vec3, grace: f32, t_max: f32) -> Option<(f32, u32)> {
-        self.first_hit_where(o, d, 0.0, t_max, |tri, t| t > grace || Vec3::from_slice(&tri.e1[..3]).cross(Vec3::from_slice(&tri.e2[..3])).dot(d) < 0.0)
+    /// Nearest hit `(distance m, triangle index in the mesh)` within `length` (m) along the
+    /// unit direction `dir` from `o`, counting a surface whose plane `o` lies on: the ray
+    /// starts a hair ([`START_BACK_M`], more where f32 is coarser) behind `o`, so it enters
+    /// a wall it starts on at distance 0, and a face met from behind (its winding normal
+    /// along `dir`) counts only beyond twice that, so it does not stop at the plane it
+    /// leaves. For a face's edge row, which lies on the plane of the wall it meets.
+    pub fn first_hit_from_plane(&self, o: Vec3, dir: Vec3, length: f32) -> Option<(f32, u32)> {
+        let back = START_BACK_M.max(o.abs().max_element() * 8.0 * f32::EPSILON);
+        let reach = length + back;
+        let d = dir * reach;
+        let grace = 2.0 * back / reach;
+        self.first_hit_where(o - dir * back, d, 0.0, 1.0, |tri, t| t > grace || Vec3::from_slice(&tri.e1[..3]).cross(Vec3::from_slice(&tri.e2[..3])).dot(d) < 0.0)
+            .map(|(t, tri)| ((t * reach - back).max(0.0), tri))
     }
 
     fn first_hit_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, accept: impl Fn(&Tri, f32) -> bool) -> Option<(f32, u32)> {
