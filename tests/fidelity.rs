@@ -64,8 +64,9 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// (fixture, largest relative error, what the recorded compile must have switched on).
 /// Measured on 2026-11-23: point 0.0000, pillar 0.0016, offgrid 0.0039, near_wall 0.0002,
 /// spot 0.0000, surface 0.0031, sun 0.0000, skylight 0.0346, skylight_bright 0.0388,
-/// bounce 0.0457, dirt 0.0049, filter 0.0028, gamma 0.0018, minlight 0.0013, combo 0.0216.
-const FIXTURES: [(&str, f64, &[&str]); 15] = [
+/// bounce 0.0457, dirt 0.0049, filter 0.0028, gamma 0.0018, minlight 0.0013, combo 0.0216;
+/// on 2026-11-24, detail 0.0113.
+const FIXTURES: [(&str, f64, &[&str]); 16] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
     ("offgrid", 0.008, &[]),
@@ -81,6 +82,7 @@ const FIXTURES: [(&str, f64, &[&str]); 15] = [
     ("gamma", 0.005, &[]),
     ("minlight", 0.005, &[]),
     ("combo", 0.03, &["bounce", "dirt", "filter"]),
+    ("detail", 0.02, &[]),
 ];
 
 #[test]
@@ -120,6 +122,47 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The map's own solids (scene extras `q3_solids`, from the BSP) place the samples as
+/// q3map2 did: in the `detail` fixture a faceless detail caulk block covers a crate's side
+/// and a patch of floor, whose samples q3map2 counted as occluded. Without the record (as
+/// after a Blender export without custom properties) relight guesses from the faces, cannot
+/// see the caulk, and fits those texels as open floor.
+#[test]
+fn the_maps_own_solids_place_the_samples_as_q3map2_did() {
+    let dir = tmp("solids");
+    let bsp = fixtures().join("maps/detail.bsp");
+    let gltf = dir.join("detail.gltf");
+    let mut args: Vec<String> = vec!["convert".into(), bsp.to_str().unwrap().into()];
+    for g in [common::baseoa(), &fixtures()] {
+        args.extend(["--game-dir".into(), g.to_str().unwrap().into()]);
+    }
+    let source = fixtures().join("maps/detail.map");
+    args.extend(["--lights-from".into(), source.to_str().unwrap().into(), "-o".into(), gltf.to_str().unwrap().into(), "-q".into()]);
+    run(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    // The same scene without the record.
+    let mut doc: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    let extras = &mut doc["scenes"][0]["extras"];
+    assert!(extras["q3_solids"]["nodes"].as_array().is_some_and(|n| !n.is_empty()), "convert wrote no solids");
+    extras.as_object_mut().unwrap().remove("q3_solids");
+    let faces = dir.join("faces.gltf");
+    std::fs::write(&faces, serde_json::to_vec(&doc).unwrap()).unwrap();
+    let fit = |input: &Path, name: &str| -> Value {
+        let rep = dir.join(format!("{name}.json"));
+        let out = dir.join(format!("{name}.relit.glb"));
+        run(&["relight", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", "input", "--fit", "globals", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+        serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap()
+    };
+    let (with, without) = (fit(&gltf, "map"), fit(&faces, "faces"));
+    assert_eq!(with["luxel"]["solids_from"], "map");
+    assert_eq!(without["luxel"]["solids_from"], "faces");
+    let (e_map, e_faces) = (with["rel_error_final"].as_f64().unwrap(), without["rel_error_final"].as_f64().unwrap());
+    eprintln!("detail: {e_map:.4} with the map's solids, {e_faces:.4} from the faces");
+    assert!(e_map <= 0.02, "{e_map}");
+    // Measured 0.0113 against 0.0547.
+    assert!(e_faces > 3.0 * e_map, "the solids bought nothing: {e_map} against {e_faces}");
+    assert!(with["luxel"]["nudged"].as_u64().unwrap() > 0 && with["luxel"]["buried"].as_u64().unwrap() > 0, "{}", with["luxel"]);
 }
 
 /// The BSP's lightmap pages (lump 14: 128 x 128 RGB each).

@@ -82,14 +82,28 @@ pub const LIGHTMAP_BYTES: usize = LIGHTMAP_SIZE * LIGHTMAP_SIZE * 3;
 /// Surface flags (`surfaceFlags` of a shader record) that the converter reads.
 pub mod surf {
     pub const SKY: i32 = 0x4;
+    pub const LIGHTFILTER: i32 = 0x8000;
+    pub const ALPHASHADOW: i32 = 0x10000;
     pub const NODRAW: i32 = 0x80;
     pub const HINT: i32 = 0x100;
     pub const SKIP: i32 = 0x200;
 }
 /// Content flags (`contentFlags` of a shader record) that the converter reads.
 pub mod contents {
+    pub const LAVA: i32 = 0x8;
+    pub const SLIME: i32 = 0x10;
+    pub const WATER: i32 = 0x20;
     pub const FOG: i32 = 0x40;
     pub const AREAPORTAL: i32 = 0x8000;
+    pub const PLAYERCLIP: i32 = 0x10000;
+    pub const MONSTERCLIP: i32 = 0x20000;
+    pub const CLUSTERPORTAL: i32 = 0x10_0000;
+    pub const DONOTENTER: i32 = 0x20_0000;
+    pub const BOTCLIP: i32 = 0x40_0000;
+    pub const ORIGIN: i32 = 0x100_0000;
+    pub const TRANSLUCENT: i32 = 0x2000_0000;
+    pub const TRIGGER: i32 = 0x4000_0000;
+    pub const NODROP: i32 = 0x8000_0000_u32 as i32;
 }
 
 /// Surface types of the surface lump.
@@ -225,6 +239,189 @@ pub struct OtherCounts {
     pub visibility_bytes: usize,
 }
 
+/// One node of lump 3: a splitting plane and its two children.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Node {
+    /// Index into [`Collision::planes`] (checked).
+    pub plane: u32,
+    /// Front and back child: `>= 0` a node (always after this one), `< 0` the leaf `-(c + 1)`
+    /// (checked).
+    pub children: [i32; 2],
+}
+
+/// One leaf of lump 4, as far as the solid structure needs it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Leaf {
+    /// PVS cluster; `-1` marks a leaf inside structural solid.
+    pub cluster: i32,
+    /// Range into [`Collision::leaf_brushes`] (checked).
+    pub first_brush: u32,
+    pub num_brushes: u32,
+}
+
+/// One brush of lump 8.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Brush {
+    /// Range into [`Collision::brush_sides`] (checked).
+    pub first_side: u32,
+    pub num_sides: u32,
+    /// Index into [`Bsp::shaders`] (checked): the brush's content shader.
+    pub shader: u32,
+}
+
+/// One brush side of lump 9.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BrushSide {
+    /// Index into [`Collision::planes`] (checked); the plane's normal points out of the brush.
+    pub plane: u32,
+    /// Index into [`Bsp::shaders`] (checked).
+    pub shader: u32,
+}
+
+/// The solid structure of the map (lumps 2, 3, 4, 6, 8 and 9): the tree of planes down to
+/// leaves, each leaf's cluster and brushes, the brushes' sides. Nothing of it is drawn;
+/// q3map2 asked it whether a lightmap's sample point lay in solid, and relight asks it the
+/// same (see `solids`). Empty when the file has none; a file whose structure does not
+/// check out keeps its geometry and has this empty with [`Collision::error`] saying why.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Collision {
+    /// Plane normals (unit) and distances, Quake units: `normal . p = dist` on the plane.
+    pub planes: Vec<([f32; 3], f32)>,
+    /// Node 0 is the root of the world's tree.
+    pub nodes: Vec<Node>,
+    pub leafs: Vec<Leaf>,
+    /// Indexes into [`Collision::brushes`] (checked).
+    pub leaf_brushes: Vec<u32>,
+    pub brushes: Vec<Brush>,
+    pub brush_sides: Vec<BrushSide>,
+    /// Why the structure was dropped, when it was.
+    pub error: Option<String>,
+}
+
+impl Collision {
+    /// Reads and checks the solid structure from its lumps (see [`Collision`]).
+    fn parse(lumps: &[&[u8]; 17], num_shaders: usize, rbsp: bool) -> Result<Collision, String> {
+        let records = |i: usize, elem: usize| -> Result<std::slice::ChunksExact<'_, u8>, String> {
+            let l = lumps[i];
+            if l.len() % elem != 0 {
+                return Err(format!("lump {i} ({}) has length {}, not a multiple of its {elem}-byte records", lump::NAMES[i], l.len()));
+            }
+            Ok(l.chunks_exact(elem))
+        };
+        let planes: Vec<([f32; 3], f32)> = records(lump::PLANES, 16)?
+            .map(|r| {
+                let mut rec = Rec::new(r);
+                (rec.vec3(), rec.f32())
+            })
+            .collect();
+        let nodes_raw: Vec<[i32; 3]> = records(lump::NODES, 36)?
+            .map(|r| {
+                let mut rec = Rec::new(r);
+                [rec.i32(), rec.i32(), rec.i32()]
+            })
+            .collect();
+        let leafs_raw: Vec<[i32; 3]> = records(lump::LEAFS, 48)?
+            .map(|r| {
+                let mut rec = Rec::new(r);
+                let cluster = rec.i32();
+                rec.skip(4 * 9); // area, bounds, leaf surfaces
+                [cluster, rec.i32(), rec.i32()]
+            })
+            .collect();
+        let leaf_brushes_raw: Vec<i32> = records(lump::LEAF_BRUSHES, 4)?.map(|r| Rec::new(r).i32()).collect();
+        let brushes_raw: Vec<[i32; 3]> = records(lump::BRUSHES, 12)?
+            .map(|r| {
+                let mut rec = Rec::new(r);
+                [rec.i32(), rec.i32(), rec.i32()]
+            })
+            .collect();
+        let sides_raw: Vec<[i32; 2]> = records(lump::BRUSH_SIDES, if rbsp { 12 } else { 8 })?
+            .map(|r| {
+                let mut rec = Rec::new(r);
+                [rec.i32(), rec.i32()]
+            })
+            .collect();
+        let index = |x: i32, len: usize, what: &str, of: String| -> Result<u32, String> {
+            if x < 0 || x as usize >= len {
+                return Err(format!("{of}: {what} {x} outside the {len} present"));
+            }
+            Ok(x as u32)
+        };
+        let range = |first: i32, n: i32, len: usize, what: &str, of: String| -> Result<(u32, u32), String> {
+            if first < 0 || n < 0 || first as u64 + n as u64 > len as u64 {
+                return Err(format!("{of}: {what} {first}+{n} outside the {len} present"));
+            }
+            Ok((first as u32, n as u32))
+        };
+        if let Some((i, _)) = planes.iter().enumerate().find(|(_, (n, d))| !n.iter().chain([d]).all(|x| x.is_finite())) {
+            return Err(format!("plane {i} is not finite"));
+        }
+        let num_nodes = nodes_raw.len();
+        let mut nodes = Vec::with_capacity(num_nodes);
+        for (i, [p, a, b]) in nodes_raw.into_iter().enumerate() {
+            let plane = index(p, planes.len(), "plane", format!("node {i}"))?;
+            for c in [a, b] {
+                // Children come after their parent (q3map2 and q3bsp write the tree in
+                // pre-order), which also rules out cycles.
+                let ok = if c >= 0 { c as usize > i && (c as usize) < num_nodes } else { ((-(c as i64) - 1) as usize) < leafs_raw.len() };
+                if !ok {
+                    return Err(format!("node {i}: child {c} is neither a later node nor one of the {} leaves", leafs_raw.len()));
+                }
+            }
+            nodes.push(Node { plane, children: [a, b] });
+        }
+        let mut leafs = Vec::with_capacity(leafs_raw.len());
+        for (i, [cluster, first, n]) in leafs_raw.into_iter().enumerate() {
+            let (first_brush, num_brushes) = range(first, n, leaf_brushes_raw.len(), "leaf brushes", format!("leaf {i}"))?;
+            leafs.push(Leaf { cluster, first_brush, num_brushes });
+        }
+        let leaf_brushes = leaf_brushes_raw
+            .into_iter()
+            .enumerate()
+            .map(|(i, b)| index(b, brushes_raw.len(), "brush", format!("leaf brush {i}")))
+            .collect::<Result<_, _>>()?;
+        let mut brushes = Vec::with_capacity(brushes_raw.len());
+        for (i, [first, n, shader]) in brushes_raw.into_iter().enumerate() {
+            let (first_side, num_sides) = range(first, n, sides_raw.len(), "sides", format!("brush {i}"))?;
+            let shader = index(shader, num_shaders, "shader", format!("brush {i}"))?;
+            brushes.push(Brush { first_side, num_sides, shader });
+        }
+        let brush_sides = sides_raw
+            .into_iter()
+            .enumerate()
+            .map(|(i, [p, s])| Ok(BrushSide { plane: index(p, planes.len(), "plane", format!("brush side {i}"))?, shader: index(s, num_shaders, "shader", format!("brush side {i}"))? }))
+            .collect::<Result<_, String>>()?;
+        Ok(Collision { planes, nodes, leafs, leaf_brushes, brushes, brush_sides, error: None })
+    }
+
+    /// Appends the structure's lumps to `lumps` (see [`Bsp::to_bytes`]); the parts relight
+    /// does not read (node and leaf bounds, leaf surfaces, areas) are written as zeros.
+    fn write(&self, lumps: &mut [Vec<u8>], rbsp: bool) {
+        let put = |v: &mut Vec<u8>, xs: &[i32]| xs.iter().for_each(|x| v.extend_from_slice(&x.to_le_bytes()));
+        for (n, d) in &self.planes {
+            n.iter().chain([d]).for_each(|x| lumps[lump::PLANES].extend_from_slice(&x.to_le_bytes()));
+        }
+        for n in &self.nodes {
+            put(&mut lumps[lump::NODES], &[n.plane as i32, n.children[0], n.children[1], 0, 0, 0, 0, 0, 0]);
+        }
+        for l in &self.leafs {
+            put(&mut lumps[lump::LEAFS], &[l.cluster, 0, 0, 0, 0, 0, 0, 0, 0, 0, l.first_brush as i32, l.num_brushes as i32]);
+        }
+        for &b in &self.leaf_brushes {
+            put(&mut lumps[lump::LEAF_BRUSHES], &[b as i32]);
+        }
+        for b in &self.brushes {
+            put(&mut lumps[lump::BRUSHES], &[b.first_side as i32, b.num_sides as i32, b.shader as i32]);
+        }
+        for s in &self.brush_sides {
+            put(&mut lumps[lump::BRUSH_SIDES], &[s.plane as i32, s.shader as i32]);
+            if rbsp {
+                put(&mut lumps[lump::BRUSH_SIDES], &[-1]);
+            }
+        }
+    }
+}
+
 /// A parsed, validated BSP file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Bsp {
@@ -239,6 +436,8 @@ pub struct Bsp {
     pub surfaces: Vec<Surface>,
     /// Lightmap pages of lump 14, each [`LIGHTMAP_BYTES`] of RGB.
     pub lightmaps: Vec<Vec<u8>>,
+    /// The solid structure (see [`Collision`]).
+    pub collision: Collision,
     pub other: OtherCounts,
 }
 
@@ -525,7 +724,8 @@ impl Bsp {
         // Indices were checked against each referencing surface; negative ones elsewhere
         // are never read, so store them as they are (wrapping) for exact round trips.
         let indices = raw_indices.into_iter().map(|x| x as u32).collect();
-        Ok(Bsp { format, entities, shaders, models, verts, indices, surfaces, lightmaps, other })
+        let collision = Collision::parse(&lumps, shaders.len(), rbsp).unwrap_or_else(|e| Collision { error: Some(e), ..Default::default() });
+        Ok(Bsp { format, entities, shaders, models, verts, indices, surfaces, lightmaps, collision, other })
     }
 
     /// Vertices of a drawable surface (range checked by [`Bsp::parse`]).
@@ -607,6 +807,7 @@ impl Bsp {
         for page in &self.lightmaps {
             lumps[lump::LIGHTMAPS].extend_from_slice(page);
         }
+        self.collision.write(&mut lumps, rbsp);
 
         let mut out = Vec::new();
         out.extend_from_slice(if rbsp { b"RBSP" } else { b"IBSP" });
@@ -651,6 +852,15 @@ mod tests {
                 ..Surface::new(0, SurfaceType::Polygon)
             }],
             lightmaps: vec![vec![7u8; LIGHTMAP_BYTES]],
+            collision: Collision {
+                planes: vec![([0.0, 0.0, 1.0], 0.0)],
+                nodes: vec![Node { plane: 0, children: [-1, -2] }],
+                leafs: vec![Leaf { cluster: 0, first_brush: 0, num_brushes: 0 }, Leaf { cluster: -1, first_brush: 0, num_brushes: 1 }],
+                leaf_brushes: vec![0],
+                brushes: vec![Brush { first_side: 0, num_sides: 1, shader: 0 }],
+                brush_sides: vec![BrushSide { plane: 0, shader: 0 }],
+                error: None,
+            },
             other: OtherCounts::default(),
         }
     }
@@ -660,8 +870,10 @@ mod tests {
         for format in [Format::Ibsp(46), Format::Ibsp(47), Format::Rbsp] {
             let mut b = tiny();
             b.format = format;
-            let parsed = Bsp::parse(&b.to_bytes()).unwrap();
-            assert_eq!(parsed, b, "{format}");
+            let mut parsed = Bsp::parse(&b.to_bytes()).unwrap();
+            assert_eq!((parsed.other.planes, parsed.other.nodes, parsed.other.leafs, parsed.other.brushes), (1, 1, 2, 1));
+            parsed.other = b.other;
+            assert!(parsed == b, "{format}: the records differ after the round trip");
         }
     }
 
@@ -685,5 +897,25 @@ mod tests {
         let mut b = tiny();
         b.surfaces[0].num_verts = 1 << 30;
         assert!(matches!(Bsp::parse(&b.to_bytes()), Err(BspError::Invalid(m)) if m.contains("exceed")));
+    }
+
+    #[test]
+    fn a_broken_solid_structure_is_dropped_with_its_reason_and_the_geometry_kept() {
+        let cases: [(&str, fn(&mut Collision)); 5] = [
+            ("plane 7", |c| c.nodes[0].plane = 7),
+            ("child 0", |c| c.nodes[0].children[0] = 0),
+            ("leaf brushes", |c| c.leafs[1].num_brushes = 9),
+            ("sides", |c| c.brushes[0].first_side = u32::MAX),
+            ("shader", |c| c.brush_sides[0].shader = 3),
+        ];
+        for (said, break_it) in cases {
+            let mut b = tiny();
+            break_it(&mut b.collision);
+            let parsed = Bsp::parse(&b.to_bytes()).unwrap();
+            assert_eq!(parsed.surfaces, b.surfaces);
+            assert!(parsed.collision.nodes.is_empty() && parsed.collision.brushes.is_empty());
+            let why = parsed.collision.error.unwrap_or_default();
+            assert!(why.contains(said), "{said}: {why}");
+        }
     }
 }

@@ -33,6 +33,7 @@ pub mod patch;
 pub mod pipeline;
 pub mod scene;
 pub mod shader;
+pub mod solids;
 pub mod texture;
 pub mod units;
 pub mod vfs;

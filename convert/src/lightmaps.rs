@@ -156,6 +156,7 @@ mod tests {
             indices: Vec::new(),
             surfaces: indices.iter().map(|&l| Surface { lightmap: l, ..Surface::new(0, SurfaceType::Flare) }).collect(),
             lightmaps: Vec::new(),
+            collision: Default::default(),
             other: OtherCounts::default(),
         }
     }

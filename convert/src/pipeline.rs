@@ -538,12 +538,19 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     summary.materials = scene.materials.len();
     summary.images = scene.images.len();
     summary.lights = scene.lights.len();
-    scene.extras = Some(json!({
+    let mut extras = json!({
         "q3_map": map.name,
         "q3_format": bsp.format.to_string(),
         "q3_scale": opts.scale,
         "q3_overbright_bits": opts.overbright_bits,
-    }));
+    });
+    if let Some(why) = &bsp.collision.error {
+        summary.warnings.push(format!("the map's solid structure is left out ({why}); relight will guess where solid is from the faces"));
+    }
+    if let Some(solids) = crate::solids::q3map2_solids(&bsp, opts.scale) {
+        extras["q3_solids"] = solids;
+    }
+    scene.extras = Some(extras);
     lap(&mut summary, "entities");
     Ok((scene, summary))
 }

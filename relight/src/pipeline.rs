@@ -387,7 +387,10 @@ fn light_box(mesh: &crate::scene::Mesh, rows: &Rows) -> (glam::Vec3, glam::Vec3)
 fn luxel_rows(scene: &Scene, tg: &projection::Target, bvh: &Bvh) -> luxel::Luxels {
     let (lo, hi) = scene.mesh.bounds();
     let mut lx = luxel::rows(scene, tg, (hi - lo).length());
-    luxel::nudge_out_of_solid(&mut lx, scene, bvh);
+    // The map's own solids when the file carries them, else the faces' guess.
+    if !scene.solids.as_ref().is_some_and(|s| luxel::place_in_solids(&mut lx, s)) {
+        luxel::nudge_out_of_solid(&mut lx, scene, bvh);
+    }
     luxel::drop_buried(&mut lx, scene, bvh);
     lx.stats.on_solid_plane = luxel::mark_solid_ahead(&mut lx.rows, scene, bvh);
     lx

@@ -268,6 +268,9 @@ pub struct Scene {
     pub compile: Compile,
     /// The terms of relight's model that a relit file records only in its scene extras.
     pub relit: Option<Relit>,
+    /// Where q3map2 found solid (scene extras `q3_solids`, written by convert from the
+    /// BSP); `None` when the file does not carry it (then the faces decide).
+    pub solids: Option<crate::trace::solids::Solids>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

@@ -461,7 +461,8 @@ pub fn generate() -> Sample {
         indices,
         surfaces,
         lightmaps: pages.pages,
-        other: OtherCounts::default(),
+        collision: Default::default(),
+            other: OtherCounts::default(),
     };
     let mut files = vec![("maps/sample.bsp".to_string(), bsp.to_bytes()), ("scripts/sample.shader".to_string(), SHADER_SCRIPT.as_bytes().to_vec())];
     for (k, name) in ["wall", "floor", "pillar", "arch", "panel"].iter().enumerate() {

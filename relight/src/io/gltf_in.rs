@@ -593,7 +593,17 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     suns.sort_by_key(|s| s.node);
     let units_m = scene_extras.get("q3_scale").and_then(Value::as_f64).filter(|s| s.is_finite() && *s > 1e-6 && *s < 1e3).unwrap_or(q3gltf_convert::units::DEFAULT_SCALE) as f32;
     let relit = scene_extras.get("q3_relight").and_then(relit_of);
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit })
+    let solids = match scene_extras.get("q3_solids") {
+        Some(v) => match crate::trace::solids::Solids::from_extras(v, origin, units_m as f64) {
+            Ok(s) => Some(s),
+            Err(why) => {
+                skipped.push(format!("scene extras `q3_solids` left out: {why}"));
+                None
+            }
+        },
+        None => None,
+    };
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).

@@ -1,5 +1,7 @@
 //! Rays through the scene: the BVH ([`bvh`], layout shared with `shaders/bvh.wgsl`) and
-//! the cached shadow-ray visibility of lights and the sun ([`visibility`]).
+//! the cached shadow-ray visibility of lights and the sun ([`visibility`]), and where
+//! q3map2 found solid ([`solids`]).
 
 pub mod bvh;
+pub mod solids;
 pub mod visibility;
