@@ -293,10 +293,14 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
         println!("  subdivide {} -> {} vertices in {} rounds (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.rounds, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
     }
     match &rep.luxel {
-        Some(l) => println!(
-            "  target    {} luxels ({} censored: lower bounds) and {} vertex-lit vertices; {} sliver triangles without a luxel",
-            l.luxels, l.censored, l.vertex_rows, l.triangles_without_luxel
-        ),
+        Some(l) => {
+            println!(
+                "  target    {} luxels ({} censored: lower bounds) and {} vertex-lit vertices; {} sliver triangles without a luxel",
+                l.luxels, l.censored, l.vertex_rows, l.triangles_without_luxel
+            );
+            let from = if l.solids_from == "map" { "the map's own solids" } else { "the faces (the file carries no usable `q3_solids`)" };
+            println!("  samples   {} nudged out of solid, {} left out (in solid or enclosed); solid as {from}", l.nudged, l.buried);
+        }
         None => println!(
             "  target    {} vertices with a target, {} censored (lower bounds), {} without baked lighting",
             rep.target.with_target, rep.target.censored, rep.target.no_coverage
