@@ -45,7 +45,8 @@ fn globals_fit(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs: &[&P
     globals_fit_with(dir, name, bsp, source, game_dirs, &[])
 }
 
-fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs: &[&Path], extra: &[&str]) -> Value {
+/// Converts `bsp` with the light entities of `source` into `dir/NAME.glb`.
+fn convert_with_source(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs: &[&Path]) -> PathBuf {
     let gltf = dir.join(format!("{name}.glb"));
     let mut args: Vec<String> = vec!["convert".into(), bsp.into()];
     for g in game_dirs {
@@ -53,6 +54,11 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
     }
     args.extend(["--lights-from".into(), source.to_str().unwrap().into(), "-o".into(), gltf.to_str().unwrap().into(), "-q".into()]);
     run(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    gltf
+}
+
+fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs: &[&Path], extra: &[&str]) -> Value {
+    let gltf = convert_with_source(dir, name, bsp, source, game_dirs);
     let rep = dir.join(format!("{name}.json"));
     let out = dir.join(format!("{name}.relit.glb"));
     let mut args = vec!["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", "input", "--fit", "globals", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"];
@@ -236,6 +242,79 @@ fn truth_set_maps_with_their_source_lights() {
             failures.push(format!("{map}: relative error {err:.4} > {bound}"));
         }
         assert!(!r["lights"].as_array().unwrap().is_empty(), "{map}: the source's lights were not read");
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The JSON chunk of a GLB file.
+fn glb_json(path: &Path) -> Value {
+    let b = std::fs::read(path).unwrap();
+    let len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    serde_json::from_slice(&b[20..20 + len]).unwrap()
+}
+
+/// A glTF's point lights: (intensity, position in m), root nodes.
+fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
+    let lights = doc["extensions"]["KHR_lights_punctual"]["lights"].as_array().cloned().unwrap_or_default();
+    doc["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|n| {
+            let l = &lights[n["extensions"]["KHR_lights_punctual"]["light"].as_u64()? as usize];
+            (l["type"] == "point").then(|| {
+                let t = n["translation"].as_array().map(|t| [0, 1, 2].map(|k| t[k].as_f64().unwrap())).unwrap_or([0.0; 3]);
+                (l["intensity"].as_f64().unwrap_or(1.0), t)
+            })
+        })
+        .collect()
+}
+
+/// (map, largest error of the default relight, fewest of the source's 10 strongest point
+/// lights with a found point light within 64 units). Measured on 2026-11-24 (2 cores):
+/// see the README's recovery table; the fidelity issue's goals (within 1.15 x the source
+/// refit, 7 of 10 found) are met on oacmpdm4 only.
+const RECOVERY: [(&str, f64, usize); 5] = [
+    ("oacmpdm1", 0.26, 0),
+    ("oacmpdm2", 0.28, 0),
+    ("oacmpdm3", 0.30, 0),
+    ("oacmpdm4", 0.25, 8),
+    ("oacmpctf1", 0.13, 0),
+];
+
+/// Recovery: the default relight (`--init auto`, no source) on the truth-set maps.
+#[test]
+fn truth_set_recovery_by_the_default_relight() {
+    let dir = tmp("recovery");
+    let pk3 = common::oacmp().join("z_oacmp-volume1-v3.pk3");
+    let mut failures = Vec::new();
+    for (map, bound, min_found) in RECOVERY {
+        let source = dir.join(format!("{map}.map"));
+        common::extract(&pk3, &format!("sources/maps/{map}.map"), &source);
+        let gltf = convert_with_source(&dir, map, map, &source, &[common::baseoa(), common::oacmp()]);
+        let rep = dir.join(format!("{map}.auto.json"));
+        let out = dir.join(format!("{map}.auto.glb"));
+        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+        let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+        let mut sources = point_lights(&glb_json(&gltf));
+        assert!(sources.len() >= 10, "{map}: {} source point lights", sources.len());
+        sources.sort_by(|a, b| b.0.total_cmp(&a.0));
+        // The fitted lights, as the report gives them (the written scene is checked elsewhere).
+        let found: Vec<[f64; 3]> = r["lights"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|l| l["kind"] == "point")
+            .map(|l| [0, 1, 2].map(|k| l["position_m"][k].as_f64().unwrap()))
+            .collect();
+        let reach = 64.0 * 0.0254;
+        let near = |p: [f64; 3]| found.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt() <= reach);
+        let hits = sources[..10].iter().filter(|(_, p)| near(*p)).count();
+        let err = r["rel_error_final"].as_f64().unwrap();
+        eprintln!("{map:10} {err:.4} (bound {bound}), {} lights, {hits}/10 of the strongest sources found (at least {min_found})", found.len());
+        if !(err <= bound) || hits < min_found {
+            failures.push(format!("{map}: error {err:.4} (bound {bound}), {hits}/10 found (at least {min_found})"));
+        }
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }

@@ -7,8 +7,9 @@
 //!   opposite surface, and only in free space (rays in 14 directions must all hit front
 //!   faces: never inside a wall or outside the map). The candidate that removes most of
 //!   the residual (exact one-light least squares) is added, everything is refitted with a
-//!   short L-BFGS, and adding stops when the relative error improves by less than
-//!   `min_gain` or `max_lights` is reached.
+//!   short L-BFGS; if that gains less than `min_gain`, the next-best candidates are
+//!   tried (up to [`TRIES_PER_ROUND`]), and adding stops when none does or `max_lights`
+//!   is reached.
 //! - `input`: the lights of the glTF (handled by the caller).
 
 use glam::Vec3;
@@ -85,6 +86,9 @@ pub struct AutoStats {
 /// (`locked` says which are the user's locked ones); new lights are placed for what it
 /// leaves unexplained. `start_time` is the clock of the run, for the iteration records.
 #[allow(clippy::too_many_arguments)]
+/// Candidates tried, best score first, before a round that adds no light stops the placement.
+const TRIES_PER_ROUND: usize = 3;
+
 pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Vec3, model: &Model, locked: &[bool], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Model, AutoStats) {
     let (sub, take) = rows.subsample(sample, seed);
     let sub_bases = bases.subset(&take);
@@ -171,30 +175,40 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
                 })
                 .collect()
         };
-        let Some(best) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)) else { break };
-        if !(best.0 > 0.0) {
+        let mut scored = scored;
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        // The best-scored candidate can fail once refitted (its one-light score ignores how
+        // the others move); the next ones are tried before the placement stops.
+        let mut added = false;
+        for best in scored.iter().take(TRIES_PER_ROUND) {
+            if !(best.0 > 0.0) || fit.out_of_time() {
+                break;
+            }
+            let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
+            let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
+            fit.add_light(Light::point(best.1, best.2.map(|c| c.max(floor).max(1e-9))), false);
+            let e0 = fit.fit_linear();
+            let placed = (fit.model.clone(), fit.vis.clone());
+            fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
+            let mut e = fit.fit_linear();
+            if !(e <= e0) {
+                // The short refinement made things worse (a light slid behind a wall): undo it.
+                (fit.model, fit.vis) = placed;
+                e = e0;
+            }
+            if err - e < min_gain {
+                (fit.model, fit.locked, fit.vis) = saved;
+                continue;
+            }
+            stats.errors.push(e);
+            stats.added += 1;
+            err = e;
+            added = true;
             break;
         }
-        let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
-        let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
-        fit.add_light(Light::point(best.1, best.2.map(|c| c.max(floor).max(1e-9))), false);
-        let e0 = fit.fit_linear();
-        let placed = (fit.model.clone(), fit.vis.clone());
-        fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
-        let mut e = fit.fit_linear();
-        if !(e <= e0) {
-            // The short refinement made things worse (a light slid behind a wall): undo it.
-            (fit.model, fit.vis) = placed;
-            e = e0;
-        }
-        stats.errors.push(e);
-        if err - e < min_gain {
-            (fit.model, fit.locked, fit.vis) = saved;
-            stats.errors.pop();
+        if !added {
             break;
         }
-        stats.added += 1;
-        err = e;
     }
     stats.history = std::mem::take(&mut fit.history);
     (fit.model.clone(), stats)
