@@ -202,12 +202,10 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize) -> (
             (acc, landed)
         })
         .collect();
-    let mut k = Sparse { offsets: Vec::with_capacity(rows.len() + 1), entries: Vec::new() };
-    k.offsets.push(0);
+    let mut k = Sparse::empty();
     let mut st = GatherStats { rows: rows.len(), rays_per_row: m, rays: (rows.len() * m) as u64, landed: 0 };
     for (acc, landed) in per_row {
-        k.entries.extend(acc);
-        k.offsets.push(k.entries.len() as u32);
+        k.push_row(acc);
         st.landed += landed;
     }
     (k, st)

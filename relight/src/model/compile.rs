@@ -30,13 +30,31 @@ use crate::rows::{Rows, SolidAhead};
 use crate::trace::bvh::Bvh;
 
 /// A sparse linear operator on the rows: `y_i = sum_k w_ik x_{j_ik}` (CSR).
+///
+/// The transpose (for the gradient's adjoint passes) is built on first use and kept, so
+/// that `S^T x` is a gather per output row, in parallel, like `S x`.
 #[derive(Debug, Clone, Default)]
 pub struct Sparse {
-    pub offsets: Vec<u32>,
-    pub entries: Vec<(u32, f32)>,
+    offsets: Vec<u32>,
+    entries: Vec<(u32, f32)>,
+    /// `S^T` in CSR over the same rows, entries of each row in increasing source row
+    /// (the order a sequential scatter would add them in: the sums are the same bits).
+    transposed: std::sync::OnceLock<Box<(Vec<u32>, Vec<(u32, f32)>)>>,
 }
 
 impl Sparse {
+    /// An operator with no rows yet ([`Sparse::push_row`] adds them in order).
+    pub fn empty() -> Sparse {
+        Sparse { offsets: vec![0], entries: Vec::new(), transposed: std::sync::OnceLock::new() }
+    }
+
+    /// Appends the next row, `(source row, weight)` pairs.
+    pub fn push_row(&mut self, row: impl IntoIterator<Item = (u32, f32)>) {
+        self.entries.extend(row);
+        self.offsets.push(self.entries.len() as u32);
+        self.transposed = std::sync::OnceLock::new();
+    }
+
     pub fn row(&self, i: usize) -> &[(u32, f32)] {
         &self.entries[self.offsets[i] as usize..self.offsets[i + 1] as usize]
     }
@@ -47,35 +65,86 @@ impl Sparse {
 
     /// `y = S x` per channel, with an optional per-column factor `col[j]` (per channel).
     pub fn apply(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
-        (0..self.rows())
+        gather(&self.offsets, &self.entries, x, col)
+    }
+
+    /// `y = S^T x` (the same optional column factor applied on the output side). `y` has
+    /// `x.len()` rows; a column index past it is not counted (as the scatter would panic,
+    /// the operators here are square).
+    pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        let t = self.transposed.get_or_init(|| Box::new(self.transpose()));
+        let (offsets, entries) = (&t.0, &t.1);
+        let n = x.len().min(offsets.len().saturating_sub(1));
+        let mut y = vec![[0.0f64; 3]; x.len()];
+        // Row j of S^T gathers x over the rows i that point at j; the column factor is
+        // that of the output row j.
+        y[..n].par_iter_mut().enumerate().for_each(|(j, yj)| {
+            let f = col.map_or([1.0f32; 3], |a| a[j]);
+            for &(i, w) in &entries[offsets[j] as usize..offsets[j + 1] as usize] {
+                let Some(xi) = x.get(i as usize) else { continue };
+                for c in 0..3 {
+                    yj[c] += w as f64 * f[c] as f64 * xi[c];
+                }
+            }
+        });
+        y
+    }
+
+    /// `S^T` as CSR arrays over `max(rows, largest column + 1)` rows.
+    fn transpose(&self) -> (Vec<u32>, Vec<(u32, f32)>) {
+        let cols = self.entries.iter().map(|e| e.0 as usize + 1).max().unwrap_or(0).max(self.rows());
+        let mut offsets = vec![0u32; cols + 1];
+        for &(j, _) in &self.entries {
+            offsets[j as usize + 1] += 1;
+        }
+        for j in 0..cols {
+            offsets[j + 1] += offsets[j];
+        }
+        let mut fill: Vec<u32> = offsets[..cols].to_vec();
+        let mut entries = vec![(0u32, 0.0f32); self.entries.len()];
+        for i in 0..self.rows() {
+            for &(j, w) in self.row(i) {
+                let at = &mut fill[j as usize];
+                entries[*at as usize] = (i as u32, w);
+                *at += 1;
+            }
+        }
+        (offsets, entries)
+    }
+}
+
+/// The CSR product `y_i = sum_k w_ik col_{j_ik} x_{j_ik}` (rayon; the column factor's
+/// presence decided once, outside the loop).
+fn gather(offsets: &[u32], entries: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+    let range = 0..offsets.len().saturating_sub(1);
+    let row = |i: usize| &entries[offsets[i] as usize..offsets[i + 1] as usize];
+    match col {
+        Some(col) => range
             .into_par_iter()
             .map(|i| {
                 let mut y = [0.0f64; 3];
-                for &(j, w) in self.row(i) {
-                    let j = j as usize;
+                for &(j, w) in row(i) {
+                    let (xj, fj) = (&x[j as usize], &col[j as usize]);
                     for c in 0..3 {
-                        let f = col.map_or(1.0, |a| a[j][c] as f64);
-                        y[c] += w as f64 * f * x[j][c];
+                        y[c] += w as f64 * fj[c] as f64 * xj[c];
                     }
                 }
                 y
             })
-            .collect()
-    }
-
-    /// `y = S^T x` (the same optional column factor applied on the output side).
-    pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
-        let mut y = vec![[0.0f64; 3]; x.len()];
-        for i in 0..self.rows() {
-            for &(j, w) in self.row(i) {
-                let j = j as usize;
-                for c in 0..3 {
-                    let f = col.map_or(1.0, |a| a[j][c] as f64);
-                    y[j][c] += w as f64 * f * x[i][c];
+            .collect(),
+        None => range
+            .into_par_iter()
+            .map(|i| {
+                let mut y = [0.0f64; 3];
+                for &(j, w) in row(i) {
+                    let xj = &x[j as usize];
+                    for c in 0..3 {
+                        y[c] += w as f64 * xj[c];
+                    }
                 }
-            }
-        }
-        y
+                y
+            })
+            .collect(),
     }
 }
 
@@ -114,7 +183,7 @@ pub fn neighbours(rows: &Rows) -> Vec<Vec<(u32, i8, i8)>> {
 
 /// q3map2's `-filter` on every light: the normalised 3x3 tent (see the module docs).
 pub fn filter(rows: &Rows, nb: &[Vec<(u32, i8, i8)>]) -> Sparse {
-    let mut s = Sparse { offsets: vec![0], entries: Vec::new() };
+    let mut s = Sparse::empty();
     for i in 0..rows.len() {
         let mut row = vec![(i as u32, 1.0f32)];
         for &(j, dx, dy) in &nb[i] {
@@ -122,8 +191,7 @@ pub fn filter(rows: &Rows, nb: &[Vec<(u32, i8, i8)>]) -> Sparse {
             row.push((j, w));
         }
         let sum: f32 = row.iter().map(|e| e.1).sum();
-        s.entries.extend(row.into_iter().map(|(j, w)| (j, w / sum)));
-        s.offsets.push(s.entries.len() as u32);
+        s.push_row(row.into_iter().map(|(j, w)| (j, w / sum)));
     }
     s
 }
@@ -223,7 +291,10 @@ mod tests {
 
     #[test]
     fn sparse_transpose_is_the_adjoint() {
-        let s = Sparse { offsets: vec![0, 2, 3, 5], entries: vec![(0, 0.5), (2, 0.25), (1, 1.0), (0, 0.2), (2, 0.8)] };
+        let mut s = Sparse::empty();
+        s.push_row([(0, 0.5), (2, 0.25)]);
+        s.push_row([(1, 1.0)]);
+        s.push_row([(0, 0.2), (2, 0.8)]);
         let x = vec![[1.0, 2.0, 3.0], [0.5, -1.0, 2.0], [4.0, 0.0, -2.0]];
         let y = vec![[0.3, 0.1, -0.7], [1.0, 2.0, 0.5], [-0.2, 0.4, 0.9]];
         let col = vec![[0.9, 0.8, 0.7], [0.5, 0.6, 0.4], [1.0, 0.2, 0.3]];
@@ -234,6 +305,39 @@ mod tests {
             let b: f64 = (0..3).map(|i| sty[i][c] * x[i][c]).sum();
             assert!((a - b).abs() < 1e-12, "<y, Sx> = <S^T y, x>: {a} vs {b}");
         }
+    }
+
+    /// The cached transpose's gather gives the bits a sequential scatter gives (the same
+    /// terms in the same order), and a row pushed after a use is seen.
+    #[test]
+    fn sparse_transpose_gathers_what_a_scatter_adds() {
+        let n = 2000;
+        let mut s = Sparse::empty();
+        for i in 0..n {
+            let k = 1 + (crate::model::bounce::hash01(i as u32, 7) * 20.0) as usize;
+            s.push_row((0..k).map(|m| (((crate::model::bounce::hash01(i as u32, m as u32) * n as f32) as u32).min(n as u32 - 1), 0.1 + crate::model::bounce::hash01(m as u32, i as u32))));
+        }
+        let x: Vec<[f64; 3]> = (0..n).map(|i| [i as f64 * 0.37, (i % 11) as f64 - 5.0, 1.0 / (1.0 + i as f64)]).collect();
+        let col: Vec<[f32; 3]> = (0..n).map(|i| [0.3, 0.5 + (i % 3) as f32 * 0.1, 0.9]).collect();
+        let scatter = |s: &Sparse, x: &[[f64; 3]], col: &[[f32; 3]]| {
+            let mut y = vec![[0.0f64; 3]; x.len()];
+            for i in 0..s.rows() {
+                for &(j, w) in s.row(i) {
+                    for c in 0..3 {
+                        y[j as usize][c] += w as f64 * col[j as usize][c] as f64 * x[i][c];
+                    }
+                }
+            }
+            y
+        };
+        assert_eq!(s.apply_transposed(&x, Some(&col)), scatter(&s, &x, &col));
+        // A further row (a square operator grown by one) after the transpose was cached.
+        s.push_row([(0, 2.0), (n as u32, 1.0)]);
+        let mut x2 = x.clone();
+        x2.push([1.0, 2.0, 3.0]);
+        let mut col2 = col.clone();
+        col2.push([1.0; 3]);
+        assert_eq!(s.apply_transposed(&x2, Some(&col2)), scatter(&s, &x2, &col2));
     }
 
     /// A 10 m square wall through the origin, facing `w`.

@@ -400,12 +400,9 @@ mod tests {
             surfaces.offsets.push(surfaces.entries.len() as u32);
         }
         let ring = |w: f32| {
-            let mut s = Sparse { offsets: vec![0], entries: Vec::new() };
+            let mut s = Sparse::empty();
             for i in 0..n {
-                s.entries.push((i as u32, 1.0 - 2.0 * w));
-                s.entries.push((((i + 1) % n) as u32, w));
-                s.entries.push((((i + 7) % n) as u32, w));
-                s.offsets.push(s.entries.len() as u32);
+                s.push_row([(i as u32, 1.0 - 2.0 * w), (((i + 1) % n) as u32, w), (((i + 7) % n) as u32, w)]);
             }
             s
         };

@@ -122,15 +122,17 @@ impl Bvh {
             return false;
         }
         let inv = d.recip();
+        if !slab(&self.nodes[0], o, inv, t_max) {
+            return false;
+        }
+        // Children are tested where their parent is visited and only the boxes the segment
+        // crosses are pushed (any hit answers, so the order does not change the answer).
         let mut stack = [0u32; MAX_DEPTH];
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
             let here = stack[sp];
             let node = &self.nodes[here as usize];
-            if !slab(node, o, inv, t_max) {
-                continue;
-            }
             if node.count > 0 {
                 let first = node.right_or_first as usize;
                 for tri in &self.tris[first..first + node.count as usize] {
@@ -140,10 +142,14 @@ impl Bvh {
                         }
                     }
                 }
-            } else if sp + 2 <= MAX_DEPTH {
-                stack[sp] = node.right_or_first;
-                stack[sp + 1] = here + 1;
-                sp += 2;
+            } else {
+                let (left, right) = (here + 1, node.right_or_first);
+                for child in [right, left] {
+                    if sp < MAX_DEPTH && slab(&self.nodes[child as usize], o, inv, t_max) {
+                        stack[sp] = child;
+                        sp += 1;
+                    }
+                }
             }
         }
         false
@@ -178,7 +184,7 @@ impl Bvh {
         let inv = d.recip();
         let mut best: Option<(f32, u32)> = None;
         let mut limit = t_max;
-        let mut stack = vec![0u32];
+        let mut stack = Stack::root();
         while let Some(i) = stack.pop() {
             if self.tris.is_empty() {
                 break;
@@ -248,7 +254,7 @@ impl Bvh {
     /// `visit` returns the bound for the rest of the walk (a nearest search shrinks it).
     fn visit_near(&self, p: Vec3, bound2: f32, mut visit: impl FnMut(u32, Vec3, f32) -> f32) {
         let mut bound2 = bound2;
-        let mut stack = vec![0u32];
+        let mut stack = Stack::root();
         while let Some(i) = stack.pop() {
             if self.tris.is_empty() {
                 break;
@@ -270,6 +276,32 @@ impl Bvh {
                 stack.push(i + 1);
             }
         }
+    }
+}
+
+/// The traversal stack of the nearest-hit and nearby walks: a node's two children are
+/// pushed when it is visited, so it holds at most one entry per level plus one
+/// ([`MAX_DEPTH`] bounds the build); no allocation per ray.
+struct Stack {
+    items: [u32; MAX_DEPTH + 1],
+    len: usize,
+}
+
+impl Stack {
+    fn root() -> Stack {
+        Stack { items: [0; MAX_DEPTH + 1], len: 1 }
+    }
+
+    fn push(&mut self, node: u32) {
+        if self.len < self.items.len() {
+            self.items[self.len] = node;
+            self.len += 1;
+        }
+    }
+
+    fn pop(&mut self) -> Option<u32> {
+        self.len = self.len.checked_sub(1)?;
+        Some(self.items[self.len])
     }
 }
 
