@@ -10,7 +10,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::rows::{Rows, Sampling};
-use crate::trace::bvh::Bvh;
+use crate::trace::bvh::{Bvh, Occluder};
 
 
 #[derive(Debug, Clone, Default)]
@@ -158,12 +158,13 @@ pub fn trace_light(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32) -> Vec<u32> {
         .into_par_iter()
         .map(|w| {
             let mut word = 0u32;
+            let mut last = Occluder::default();
             for b in 0..32 {
                 let i = w * 32 + b;
                 if i >= n {
                     break;
                 }
-                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_from(bvh, pb.pos[i], pb.normal[i], light, &pb.sampling) {
+                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_after(bvh, pb.pos[i], pb.normal[i], light, &pb.sampling, &mut last) {
                     word |= 1 << b;
                 }
             }
@@ -175,6 +176,12 @@ pub fn trace_light(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32) -> Vec<u32> {
 /// One shadow ray (the CPU reference of the WGSL `visible_from`): from `x + n offset`
 /// to the light, ignoring geometry within `inhibit` of the ray's start.
 pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> bool {
+    visible_after(bvh, x, n, light, s, &mut Occluder::default())
+}
+
+/// [`visible_from`] with the occluder of the previous ray towards the same light tried
+/// first ([`Bvh::occluded_after`]; the same answer).
+pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, last: &mut Occluder) -> bool {
     let (offset, inhibit) = (s.ray_offset, s.inhibit);
     if n.dot(light - x) <= 0.0 {
         return false;
@@ -186,5 +193,5 @@ pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> b
         // The light touches the surface: lit, nothing can be in between.
         return len.is_finite();
     }
-    !bvh.occluded(o, d, inhibit / len, 1.0 - offset / len)
+    !bvh.occluded_after(o, d, inhibit / len, 1.0 - offset / len, last)
 }
