@@ -161,7 +161,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
                             continue;
                         }
                         // The falloff cut is left out: the intensity is not known yet.
-                        let g = lights::term(&sub, i, &probe).g as f64 * dirt.map_or(1.0, |d| d[i] as f64);
+                        let g = lights::g(&sub, i, &probe) as f64 * dirt.map_or(1.0, |d| d[i] as f64);
                         for c in 0..3 {
                             let (r, w) = shortfall(&sub, i, c, x[i][c]);
                             let b = sub.albedo[i][c] as f64 * g / std::f64::consts::PI;

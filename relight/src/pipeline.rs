@@ -1055,7 +1055,7 @@ fn energy_shares(rows: &Rows, fit: &Fitter) -> Vec<f64> {
             if !fit.vis.visible(j, i) {
                 continue;
             }
-            let g = model::lights::term(rows, i, l).g as f64;
+            let g = model::lights::g(rows, i, l) as f64;
             e[j] += rows.area[i] as f64 * (0..3).map(|c| rows.albedo[i][c] as f64 * l.rgb[c] as f64).sum::<f64>() * g;
         }
     }

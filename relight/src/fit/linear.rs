@@ -207,8 +207,7 @@ impl Fitter<'_> {
                         }
                         let l = &m.lights[j];
                         // The falloff cut depends on the intensity: taken at the current one.
-                        let t = lights::term(rows, i, l);
-                        t.g as f64
+                        lights::g(rows, i, l) as f64
                     }
                     Col::Sun => m.sun.map_or(0.0, |s| s.cos_at(rows, &self.vis, i) as f64),
                     Col::Sky => bases.sky.as_ref().map_or(0.0, |b| b.d[i] as f64),
@@ -230,7 +229,7 @@ impl Fitter<'_> {
                     match cols[c] {
                         Col::Light(j) => {
                             let l = m.lights[j];
-                            e_l = (0..n).map(|i| if self.vis.visible(j, i) { [lights::term(rows, i, &l).g; 3] } else { [0.0; 3] }).collect();
+                            e_l = (0..n).map(|i| if self.vis.visible(j, i) { [lights::g(rows, i, &l); 3] } else { [0.0; 3] }).collect();
                         }
                         Col::Sun => one.sun = m.sun.map(|s| crate::model::Sun { rgb: [1.0; 3], ..s }),
                         Col::Sky => one.sky = Some([1.0; 3]),

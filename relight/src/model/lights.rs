@@ -164,6 +164,48 @@ pub fn term_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> Term {
     t
 }
 
+/// `g` of light `l` at row `i` without its derivatives (the irradiance, the linear
+/// fit, the placement's scores): [`term`]'s `g` by the same arithmetic, to the bit.
+#[inline]
+pub fn g(rows: &Rows, i: usize, l: &Light) -> f32 {
+    g_at(rows.pos[i], rows.normal[i], l, &rows.sampling)
+}
+
+/// [`g`] at an arbitrary point.
+#[inline]
+pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
+    let d = l.pos - x;
+    let sd = n.dot(d);
+    let r2 = d.length_squared();
+    if !(sd > 0.0) || !(r2 > 0.0) {
+        return 0.0;
+    }
+    let r = r2.sqrt();
+    let e2 = s.eps * s.eps;
+    let g0 = if r2 > e2 { sd / (r2 * r) } else { sd / (r * e2) };
+    let g = match &l.spot {
+        None => g0,
+        Some(sp) => {
+            let u = x - l.pos;
+            let t = u.dot(sp.axis);
+            if !(t > 0.0) {
+                return 0.0;
+            }
+            let rho = (u - sp.axis * t).length();
+            let big_r = sp.radius_by_dist * t;
+            if !(rho < big_r) {
+                return 0.0;
+            }
+            let c = if rho <= big_r - s.spot_ramp || !(s.spot_ramp > 0.0) { 1.0 } else { (big_r - rho) / s.spot_ramp };
+            g0 * c
+        }
+    };
+    if s.falloff > 0.0 && l.max_rgb() * g <= s.falloff {
+        return 0.0;
+    }
+    g
+}
+
 /// Irradiance of every light at every row, W/m^2 per channel (CPU backend).
 pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
     (0..rows.len())
@@ -174,10 +216,10 @@ pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 
                 if !vis.visible(j, i) {
                     continue;
                 }
-                let t = term(rows, i, l);
-                if t.g != 0.0 {
+                let g = g(rows, i, l);
+                if g != 0.0 {
                     for c in 0..3 {
-                        e[c] += l.rgb[c] as f64 * t.g as f64;
+                        e[c] += l.rgb[c] as f64 * g as f64;
                     }
                 }
             }
@@ -296,6 +338,29 @@ mod tests {
         sb.radius_by_dist -= h;
         let fd = (cone(x, p, &sa, ramp).0 - cone(x, p, &sb, ramp).0) / (2.0 * h);
         assert!((fd - dr).abs() < 1e-2, "d/dr: {dr} vs {fd}");
+    }
+
+    /// [`g_at`] is [`term_at`]'s `g` to the bit: points and spots, inside and outside the
+    /// distance clamp, on the cone's ramp and beyond it, at the falloff cut.
+    #[test]
+    fn g_alone_is_the_terms_g() {
+        use crate::model::bounce::hash01;
+        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.002, spot_ramp: 0.8, on_epsilon: 0.0 };
+        let v = |k: u32, a: u32, r: f32| Vec3::new(r * (hash01(k, a) - 0.5), r * (hash01(k, a + 1) - 0.5), r * (hash01(k, a + 2) - 0.5));
+        let (mut lit, mut ramp) = (0, 0);
+        for k in 0..20_000u32 {
+            let x = v(k, 0, 6.0);
+            let n = v(k, 3, 2.0).try_normalize().unwrap_or(Vec3::Y);
+            let mut l = Light::point(v(k, 6, 6.0), [hash01(k, 9), 0.5 * hash01(k, 10), 0.05]);
+            if k % 2 == 0 {
+                l.spot = Some(Spot { axis: (x - l.pos + v(k, 11, 2.0)).try_normalize().unwrap_or(Vec3::X), radius_by_dist: 0.1 + hash01(k, 14) });
+            }
+            let t = term_at(x, n, &l, &s);
+            assert_eq!(g_at(x, n, &l, &s).to_bits(), t.g.to_bits(), "case {k}");
+            lit += (t.g != 0.0) as usize;
+            ramp += (l.spot.is_some() && t.dr != 0.0) as usize;
+        }
+        assert!(lit > 2000 && ramp > 100, "{lit} lit, {ramp} on a ramp");
     }
 
     /// Below the falloff tolerance a light adds nothing; above it, everything.
