@@ -161,11 +161,8 @@ impl Bvh {
         }
         // Children are tested where their parent is visited and only the boxes the segment
         // crosses are pushed (any hit answers, so the order does not change the answer).
-        let mut stack = [0u32; MAX_DEPTH];
-        let mut sp = 1usize;
-        while sp > 0 {
-            sp -= 1;
-            let here = stack[sp];
+        let mut stack = Stack::root();
+        while let Some(here) = stack.pop() {
             let node = &self.nodes[here as usize];
             if node.count > 0 {
                 let first = node.right_or_first as usize;
@@ -179,9 +176,8 @@ impl Bvh {
             } else {
                 let (left, right) = (here + 1, node.right_or_first);
                 for child in [right, left] {
-                    if sp < MAX_DEPTH && slab(&self.nodes[child as usize], o, inv, t_max) {
-                        stack[sp] = child;
-                        sp += 1;
+                    if slab(&self.nodes[child as usize], o, inv, t_max) {
+                        stack.push(child);
                     }
                 }
             }
@@ -313,9 +309,9 @@ impl Bvh {
     }
 }
 
-/// The traversal stack of the nearest-hit and nearby walks: a node's two children are
-/// pushed when it is visited, so it holds at most one entry per level plus one
-/// ([`MAX_DEPTH`] bounds the build); no allocation per ray.
+/// The traversal stack of every walk: at most a node's two children are pushed when it is
+/// visited, so it holds at most one entry per level plus one ([`MAX_DEPTH`] bounds the
+/// build); no allocation per ray.
 struct Stack {
     items: [u32; MAX_DEPTH + 1],
     len: usize,
