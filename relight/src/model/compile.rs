@@ -68,9 +68,8 @@ impl Sparse {
         gather(&self.offsets, &self.entries, x, col)
     }
 
-    /// `y = S^T x` (the same optional column factor applied on the output side). `y` has
-    /// `x.len()` rows; a column index past it is not counted (as the scatter would panic,
-    /// the operators here are square).
+    /// `y = S^T x` (the same optional column factor applied on the output side), with
+    /// `x.len()` rows (the operators here are square).
     pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
         let t = self.transposed.get_or_init(|| Box::new(self.transpose()));
         let (offsets, entries) = (&t.0, &t.1);
@@ -81,9 +80,8 @@ impl Sparse {
         y[..n].par_iter_mut().enumerate().for_each(|(j, yj)| {
             let f = col.map_or([1.0f32; 3], |a| a[j]);
             for &(i, w) in &entries[offsets[j] as usize..offsets[j + 1] as usize] {
-                let Some(xi) = x.get(i as usize) else { continue };
                 for c in 0..3 {
-                    yj[c] += w as f64 * f[c] as f64 * xi[c];
+                    yj[c] += w as f64 * f[c] as f64 * x[i as usize][c];
                 }
             }
         });
@@ -113,39 +111,21 @@ impl Sparse {
     }
 }
 
-/// The CSR product `y_i = sum_k w_ik col_{j_ik} x_{j_ik}` (rayon; the column factor's
-/// presence decided once, outside the loop).
+/// The CSR product `y_i = sum_k w_ik col_{j_ik} x_{j_ik}` (rayon).
 fn gather(offsets: &[u32], entries: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
-    let range = 0..offsets.len().saturating_sub(1);
-    let row = |i: usize| &entries[offsets[i] as usize..offsets[i + 1] as usize];
-    match col {
-        Some(col) => range
-            .into_par_iter()
-            .map(|i| {
-                let mut y = [0.0f64; 3];
-                for &(j, w) in row(i) {
-                    let (xj, fj) = (&x[j as usize], &col[j as usize]);
-                    for c in 0..3 {
-                        y[c] += w as f64 * fj[c] as f64 * xj[c];
-                    }
+    (0..offsets.len().saturating_sub(1))
+        .into_par_iter()
+        .map(|i| {
+            let mut y = [0.0f64; 3];
+            for &(j, w) in &entries[offsets[i] as usize..offsets[i + 1] as usize] {
+                let f = col.map_or([1.0f32; 3], |a| a[j as usize]);
+                for c in 0..3 {
+                    y[c] += w as f64 * f[c] as f64 * x[j as usize][c];
                 }
-                y
-            })
-            .collect(),
-        None => range
-            .into_par_iter()
-            .map(|i| {
-                let mut y = [0.0f64; 3];
-                for &(j, w) in row(i) {
-                    let xj = &x[j as usize];
-                    for c in 0..3 {
-                        y[c] += w as f64 * xj[c];
-                    }
-                }
-                y
-            })
-            .collect(),
-    }
+            }
+            y
+        })
+        .collect()
 }
 
 /// The 8 neighbours of every luxel row in its raw lightmap (see the module docs), as
