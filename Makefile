@@ -12,8 +12,10 @@
 #   make bench           conversion speed table (out/bench/convert.md), `make -j2 maps` time,
 #                        relight of the sample and oa_dm1 (out/bench/relight.md), bake of
 #                        their relit scenes (out/bench/bake.md), relight's time per stage
-#                        against lights and rows (out/bench/scaling.{md,csv,svg})
-#   make bench-quick     the scaling benchmark on the bundled sample (CI runs it)
+#                        against lights and rows (out/bench/scaling.{md,csv,svg}), and
+#                        ours against the thesis's method (out/bench/thesis.{md,csv,svg};
+#                        THESIS_BENCH_FLAGS, e.g. --backends cpu,wgpu on a GPU machine)
+#   make bench-quick     the scaling and thesis benchmarks on the bundled sample (CI runs it)
 #   make sample          regenerate the bundled sample from samples/src (committed)
 #   make fuzz            build the cargo-fuzz targets (fuzz/), seed them from the sample and
 #                        OpenArena, run each for FUZZ_SECONDS (default 60); see docs/limits.md
@@ -116,13 +118,15 @@ bench: build data python-deps
 	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
 	bash benches/bake.sh $(BIN)
 	$(VENV)/bin/python benches/scaling.py --bin $(BIN) --scene $(OUT)/bench/relight/oa_dm1.glb --out $(OUT)/bench
+	$(VENV)/bin/python benches/thesis.py --bin $(BIN) --game-dir "$${GAME_DIR:-$$(bash $(FETCH))}" --out $(OUT)/bench $(THESIS_BENCH_FLAGS)
 
-# The scaling benchmark's quick form (the bundled sample, a few seconds; CI runs it):
-# out/bench/quick/scaling.{md,csv,svg}.
+# The scaling and thesis benchmarks' quick forms (the bundled sample, under a minute; CI
+# runs them): out/bench/quick/{scaling,thesis}.{md,csv,svg}.
 bench-quick: build python-deps
 	@mkdir -p $(OUT)/bench/quick
 	$(BIN) convert $(SAMPLE_BSP) -q -o $(OUT)/bench/quick/sample.glb
 	$(VENV)/bin/python benches/scaling.py --quick --bin $(BIN) --scene $(OUT)/bench/quick/sample.glb --out $(OUT)/bench/quick
+	$(VENV)/bin/python benches/thesis.py --quick --bin $(BIN) --out $(OUT)/bench/quick
 
 # Fuzzing (cargo-fuzz, libFuzzer): every parser for FUZZ_SECONDS each.
 fuzz: build data

@@ -7,7 +7,7 @@ use std::time::Duration;
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
 use q3gltf_relight::rows::look::Look;
-use q3gltf_relight::pipeline::{self, BackendChoice, FitMode, Init, Optional, Options, Progress, Subdivide, TargetSpace};
+use q3gltf_relight::pipeline::{self, BackendChoice, Estimator, FitMode, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
 #[derive(Args)]
@@ -45,9 +45,25 @@ pub struct RelightArgs {
     /// extras `"locked": true` is kept fixed).
     #[arg(long, default_value = "auto", value_name = "auto|grid:N|input")]
     pub init: String,
-    /// Optimisation scheme: default, fast, thesis1..thesis5 (Table 5.1 of the thesis).
+    /// Optimisation scheme: default, fast, thesis1..thesis5 (Table 5.1 of the thesis), or
+    /// one phase of `adam:STEP` or `lbfgs:STEP` (the thesis's basic schemes, section 5.1).
     #[arg(long, default_value = "default")]
     pub scheme: String,
+    /// What computes the lights' light: `model` (ours: a shadow ray from every row to
+    /// every light under q3map2's rules, and the sun, sky, surface lights, dirt, filter and
+    /// bounces where the map needs them) or `tracing` (the thesis's estimator, a baseline:
+    /// `--rays` rays from each point light splatted onto the vertices they hit, with
+    /// `--tracing-bounces` diffuse bounces, a fresh sample every evaluation; needs
+    /// `--target vertex` and `--init grid:N` or `input`, and has nothing but point lights).
+    #[arg(long, default_value = "model", value_parser = ["model", "tracing"])]
+    pub estimator: String,
+    /// Rays per light and evaluation of `--estimator tracing` (the thesis: 100,000).
+    #[arg(long, default_value_t = q3gltf_relight::light_tracing::THESIS_RAYS)]
+    pub rays: usize,
+    /// Diffuse bounces of `--estimator tracing` (each lands on the vertices like the
+    /// direct light, carrying the surface's albedo).
+    #[arg(long = "tracing-bounces", default_value_t = 1)]
+    pub tracing_bounces: usize,
     /// Most lights `auto` places (it stops earlier when a light no longer lowers the error
     /// by 0.001). Measured: 32 was binding on oa_dm1 (0.39, 55 s; with 64: 40 lights, 0.36,
     /// 42 s) and oacmpdm4 (0.26, 6 of its 10 strongest sources found; with room: 43
@@ -241,6 +257,18 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
         dirt: optional(&a.dirt),
         filter: optional(&a.filter),
         dump_rows: a.dump_rows.clone(),
+        estimator: match a.estimator.as_str() {
+            "tracing" => {
+                if !(1..=4_000_000).contains(&a.rays) {
+                    return Err(format!("--rays {}: expected 1 to 4000000 rays per light", a.rays));
+                }
+                if a.tracing_bounces > 16 {
+                    return Err(format!("--tracing-bounces {}: expected at most 16", a.tracing_bounces));
+                }
+                Estimator::Tracing { rays: a.rays, bounces: a.tracing_bounces }
+            }
+            _ => Estimator::Model,
+        },
     })
 }
 
@@ -325,7 +353,8 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
-    println!("  rays      {} shadow rays, {} objective evaluations", rep.rays_traced, rep.evaluations);
+    let what = if matches!(rep.estimator, Estimator::Tracing { .. }) { "light paths traced" } else { "shadow rays" };
+    println!("  rays      {} {what}, {} objective evaluations", rep.rays_traced, rep.evaluations);
     if let Some(b) = &baked {
         println!("  bake      {} files in {} (error {:.4}, {:.2} s)", b.files.len(), b.out_dir, b.rel_error.unwrap_or(f64::NAN), b.seconds);
     }

@@ -213,6 +213,37 @@ fn real_map_end_to_end_on_the_wgpu_backend() {
     assert!(gltf::Gltf::open(&relit).is_ok());
 }
 
+/// The thesis's estimator (`--estimator tracing`) end to end on a real map, on both
+/// backends: the error goes down from the grid's start, the report names the estimator and
+/// counts its light paths, and a luxel target is refused with a clear error.
+#[test]
+fn thesis_estimator_end_to_end_on_a_real_map() {
+    let dir = tmp("tracing");
+    let out = dir.join("oa_dm1.glb");
+    run(&["convert", "oa_dm1", "--game-dir", common::baseoa().to_str().unwrap(), "-o", out.to_str().unwrap(), "-q"]);
+    let relit = dir.join("oa_dm1.relit.glb");
+    for backend in ["cpu", "wgpu"] {
+        let rep = dir.join(format!("{backend}.json"));
+        // L-BFGS (thesis5) moves a dim grid much further in a few iterations than Adam's 0.1 steps.
+        run(&[
+            "relight", out.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--backend", backend, "--target", "vertex", "--subdivide", "off", "--init", "grid:3",
+            "--scheme", "thesis5", "--estimator", "tracing", "--rays", "5000", "--max-iterations", "4", "--report", rep.to_str().unwrap(), "-q",
+        ]);
+        let r = report(&rep);
+        assert!(r["backend"].as_str().unwrap().contains("light tracing 5000 rays/light"), "{}", r["backend"]);
+        assert_eq!(r["estimator"]["kind"], "tracing");
+        let (e0, e1) = (r["rel_error_initial"].as_f64().unwrap(), r["rel_error_final"].as_f64().unwrap());
+        assert!(e1.is_finite() && e1 < e0 - 0.05, "{backend}: the error did not go down: {e0} -> {e1}");
+        let (evals, rays) = (r["evaluations"].as_u64().unwrap(), r["rays_traced"].as_u64().unwrap());
+        assert!(rays >= evals * 9 * 5000, "{backend}: {rays} light paths for {evals} evaluations of 9 lights");
+        assert_eq!(r["lights"].as_array().unwrap().len(), 9, "the thesis's method keeps its grid");
+        assert!(gltf::Gltf::open(&relit).is_ok());
+    }
+    let err = Command::new(bin()).args(["relight", out.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--estimator", "tracing", "--init", "grid:3"]).output().unwrap();
+    assert!(!err.status.success());
+    assert!(String::from_utf8_lossy(&err.stderr).contains("needs --target vertex"), "{}", String::from_utf8_lossy(&err.stderr));
+}
+
 /// The target projection on wgpu (`shaders/target.wgsl`) against the CPU reference, on real
 /// inputs: the converted sample at lightmap resolution and oa_dm1 as converted. Per vertex
 /// and channel, value, weight, lower bound, albedo and area agree within 1e-4 relative to

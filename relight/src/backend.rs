@@ -21,6 +21,11 @@ pub trait Backend {
     fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>>;
     /// The lights' gradients for `rho_ic = dF/dE_ic`.
     fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>>;
+    /// Rays the backend traced itself, where it does not use the visibility cache (the
+    /// light-tracing estimator, [`crate::light_tracing`]).
+    fn rays_traced(&self) -> Option<u64> {
+        None
+    }
 }
 
 pub struct Cpu<'a> {

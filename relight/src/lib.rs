@@ -22,6 +22,7 @@ pub mod gather;
 pub mod gpu;
 pub mod init;
 pub mod io;
+pub mod light_tracing;
 pub mod model;
 pub mod optim;
 pub mod pipeline;

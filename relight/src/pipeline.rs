@@ -45,6 +45,19 @@ pub enum TargetSpace {
     Vertex,
 }
 
+/// What computes the point lights' light: see [`crate::light_tracing`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase", tag = "kind")]
+pub enum Estimator {
+    /// Ours: every row's shadow ray to every light under q3map2's rules, and the model's
+    /// other terms ([`crate::model`]).
+    Model,
+    /// The thesis's: `rays` per light and evaluation traced from the lights and splatted
+    /// onto the vertices, `bounces` diffuse bounces; point lights only, nothing else in
+    /// the model (a baseline for `make bench`).
+    Tracing { rays: usize, bounces: usize },
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub enum Init {
     Auto,
@@ -136,6 +149,7 @@ pub struct Options {
     pub filter: Optional,
     /// Write every row's data and the final model there as CSV.
     pub dump_rows: Option<PathBuf>,
+    pub estimator: Estimator,
 }
 
 impl Default for Options {
@@ -163,6 +177,7 @@ impl Default for Options {
             dirt: Optional::Auto,
             filter: Optional::Auto,
             dump_rows: None,
+            estimator: Estimator::Model,
         }
     }
 }
@@ -253,6 +268,7 @@ pub struct Report {
     /// Where the target projection ran ("wgpu", "cpu", or "cpu (why not wgpu)").
     pub target_backend: String,
     pub scheme: String,
+    pub estimator: Estimator,
     pub init: String,
     pub fit: FitMode,
     pub vertices_input: usize,
@@ -289,6 +305,7 @@ pub struct Report {
     pub auto: Option<init::AutoStats>,
     pub phases: Vec<PhaseSummary>,
     pub iterations: Vec<IterRecord>,
+    /// Shadow rays traced (`--estimator model`) or light paths started (`tracing`).
     pub rays_traced: u64,
     pub evaluations: usize,
     /// Seconds per stage, in order.
@@ -590,6 +607,18 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let phases = schemes::phases(&opts.scheme).ok_or_else(|| {
         Error::Usage(format!("unknown scheme {:?}; known: {}", opts.scheme, schemes::NAMES.iter().map(|n| n.0).collect::<Vec<_>>().join(", ")))
     })?;
+    let tracing = match opts.estimator {
+        Estimator::Tracing { rays, bounces } => {
+            if opts.target != TargetSpace::Vertex {
+                return Err(Error::Usage("--estimator tracing splats onto the vertices: it needs --target vertex".into()));
+            }
+            if opts.init == Init::Auto {
+                return Err(Error::Usage("--estimator tracing starts as the thesis did, from --init grid:N (or the file's lights, --init input)".into()));
+            }
+            Some((rays, bounces))
+        }
+        Estimator::Model => None,
+    };
 
     progress.stage("read");
     let mut scene = gltf_in::read(&opts.input)?;
@@ -625,19 +654,26 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let (lo, hi) = light_box(&scene.mesh, &rows);
 
     progress.stage("bases");
-    let (terms, compile_note) = plan_terms(opts, &scene);
+    let (mut terms, mut compile_note) = plan_terms(opts, &scene);
+    if tracing.is_some() {
+        // The thesis's model: point lights and their traced bounces, nothing else.
+        terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, filter: Optional::Off, fast_area: false };
+        compile_note = "--estimator tracing: point lights and their traced bounces only (the thesis's model)".into();
+    }
     let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
 
-    let mut backend: Box<dyn Backend + '_> = match plan {
-        Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),
-        Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
+    let mut backend: Box<dyn Backend + '_> = match (plan, tracing) {
+        (Plan::Cpu, None) => Box::new(Cpu { rows: &rows, bvh: &bvh }),
+        (Plan::Wgpu(ctx), None) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
+        (Plan::Cpu, Some((n, b))) => Box::new(crate::light_tracing::Tracing::new(&scene.mesh, &rows, &bvh, n, b, opts.seed)?),
+        (Plan::Wgpu(ctx), Some((n, b))) => Box::new(crate::gpu::TracingGpu::new(ctx, &scene.mesh, &rows, &bvh, n, b, opts.seed)?),
     };
     let backend_name = backend.name();
     st.done("upload");
 
     // The map's own emitters, then the switches the recorded compile fixes.
     progress.stage("init");
-    let mut start = declared_model(&scene, &bases, &terms);
+    let mut start = if tracing.is_some() { Model::default() } else { declared_model(&scene, &bases, &terms) };
     start.dirt = terms.dirt == Optional::On;
     start.filter = terms.filter == Optional::On;
     if terms.bounce != Optional::Off && bases.bounce.is_some() {
@@ -706,7 +742,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         fit.add_light(*l, *k);
     }
     // With --init input the start is the file as it is; otherwise the linear fit first.
-    let rel_error_initial = if matches!(opts.init, Init::Input) { fit.eval().rel_error } else { fit.fit_linear() };
+    // The thesis's estimator starts from its grid as it is (dim white lights).
+    let rel_error_initial = if matches!(opts.init, Init::Input) || tracing.is_some() { fit.eval().rel_error } else { fit.fit_linear() };
     st.done("start");
 
     fit.on_iter = Some(Box::new(|r: &IterRecord| progress.iteration(r)));
@@ -727,10 +764,14 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // needs.
     progress.stage("prune");
     let mut term_reports = Vec::new();
-    decide_terms(&mut fit, &terms, opts, &mut term_reports);
+    // The thesis's method ends with its phases: no terms, pruning, polish or exact refit
+    // (those run on our model).
+    if tracing.is_none() {
+        decide_terms(&mut fit, &terms, opts, &mut term_reports);
+    }
     let mut pruned = 0;
     let mut merged = 0;
-    if opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") {
+    if opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") && tracing.is_none() {
         let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
         pruned = fit.prune(0.002);
         merged = fit.merge((0.03 * diag).max(2.0 * fit.min_dist), 0.002);
@@ -761,7 +802,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The exact linear fit leaves censored channels out, so where most of the data is
     // censored it can be worse than what the phases reached: then the traced state is kept
     // with the phases' coefficients (a step never ends worse than it began).
-    if !fit.out_of_time() {
+    if !fit.out_of_time() && tracing.is_none() {
         fit.retrace_tol = 0.0;
         let kept = fit.model.clone();
         fit.refresh_visibility();
@@ -777,7 +818,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     st.done("prune");
 
-    let shares = energy_shares(&rows, &fit);
+    let shares = if tracing.is_some() { traced_energy_shares(&rows, &mut fit)? } else { energy_shares(&rows, &fit) };
     let residual_by_material = residual_by_material(&scene, &rows, &bases, &mut fit)?;
     if let Some(path) = &opts.dump_rows {
         dump_rows(path, &scene, &rows, &bases, &mut fit)?;
@@ -813,7 +854,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     history.iter_mut().for_each(|r| r.placement = true);
     history.extend(fit.history.iter().cloned());
     let evaluations = fit.evaluations;
-    let rays = fit.vis.rays;
+    let rays = fit.backend.rays_traced().unwrap_or(fit.vis.rays);
     drop(fit);
     progress.stage("write");
     // Emission: each surface group's fitted radiance on its materials; the sky light as
@@ -882,6 +923,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         backend_reason: reason,
         target_backend,
         scheme: opts.scheme.clone(),
+        estimator: opts.estimator,
         init: match &opts.init {
             Init::Auto => "auto".into(),
             Init::Grid(n) => format!("grid:{n}"),
@@ -1041,6 +1083,18 @@ fn light_names(source_names: &[Option<&str>], count: usize) -> Vec<String> {
         *n = Some(name);
     }
     names.into_iter().map(|n| n.expect("every light named above")).collect()
+}
+
+/// [`energy_shares`] by the light-tracing estimator: each light traced alone once.
+fn traced_energy_shares(rows: &Rows, fit: &mut Fitter) -> Result<Vec<f64>> {
+    let lights = fit.model.lights.clone();
+    let mut e = Vec::with_capacity(lights.len());
+    for l in &lights {
+        let irr = fit.backend.irradiance(&fit.vis, std::slice::from_ref(l))?;
+        e.push(irr.iter().enumerate().map(|(i, x)| rows.area[i] as f64 * (0..3).map(|c| rows.albedo[i][c] as f64 * x[c] as f64).sum::<f64>()).sum::<f64>());
+    }
+    let total: f64 = e.iter().sum();
+    Ok(e.iter().map(|v| if total > 0.0 { v / total } else { 0.0 }).collect())
 }
 
 /// Each light's share of the area-weighted direct radiance it sends to the rows.

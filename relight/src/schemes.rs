@@ -19,12 +19,22 @@ pub const NAMES: &[(&str, &str)] = &[
     ("thesis3", "L-BFGS 1.0 on all, then Adam 0.1 on all"),
     ("thesis4", "Adam 0.1 on all, three phases of 400 iterations"),
     ("thesis5", "L-BFGS 1.0 on all, three phases"),
+    ("adam:STEP", "the thesis's basic scheme: Adam with this step size on all (400 iterations)"),
+    ("lbfgs:STEP", "the thesis's basic scheme: L-BFGS with this initial step on all (until it stops)"),
 ];
 
 pub fn phases(name: &str) -> Option<Vec<Phase>> {
     let adam = |params| Phase { algorithm: Algorithm::Adam { step: 0.1 }, params, max_iterations: THESIS_ADAM_ITERATIONS };
     let lbfgs = |params, n| Phase { algorithm: Algorithm::Lbfgs { step: 1.0 }, params, max_iterations: n };
     let all = ParamSet::ALL;
+    // The basic schemes of the thesis's section 5.1: one phase, any step size.
+    let step = |p: &str| name.strip_prefix(p).and_then(|v| v.parse::<f64>().ok()).filter(|v| v.is_finite() && *v > 0.0 && *v <= 10.0);
+    if let Some(s) = step("adam:") {
+        return Some(vec![Phase { algorithm: Algorithm::Adam { step: s }, params: all, max_iterations: THESIS_ADAM_ITERATIONS }]);
+    }
+    if let Some(s) = step("lbfgs:") {
+        return Some(vec![Phase { algorithm: Algorithm::Lbfgs { step: s }, params: all, max_iterations: THESIS_LBFGS_ITERATIONS }]);
+    }
     Some(match name {
         // Measured on oa_dm1: the error stops improving after about 45 iterations.
         "default" => vec![lbfgs(all, 50)],
@@ -36,4 +46,21 @@ pub fn phases(name: &str) -> Option<Vec<Phase>> {
         "thesis5" => vec![lbfgs(all, THESIS_LBFGS_ITERATIONS), lbfgs(all, THESIS_LBFGS_ITERATIONS), lbfgs(all, THESIS_LBFGS_ITERATIONS)],
         _ => return None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn basic_schemes_take_their_step() {
+        let p = phases("adam:0.02").unwrap();
+        assert_eq!(p.len(), 1);
+        assert_eq!(p[0].algorithm, Algorithm::Adam { step: 0.02 });
+        assert_eq!(p[0].max_iterations, THESIS_ADAM_ITERATIONS);
+        assert_eq!(phases("lbfgs:1").unwrap()[0].algorithm, Algorithm::Lbfgs { step: 1.0 });
+        for bad in ["adam:", "adam:-1", "adam:nan", "lbfgs:0", "adam:1e9", "sgd:0.1"] {
+            assert!(phases(bad).is_none(), "{bad}");
+        }
+    }
 }

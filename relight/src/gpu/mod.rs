@@ -19,6 +19,9 @@ use crate::rows::projection::{self as target, CORNER_FLOATS};
 use crate::rows::Rows;
 use crate::trace::visibility::Visibility;
 
+mod tracing;
+pub use tracing::TracingGpu;
+
 const WG: u32 = 64;
 const MAX_GROUPS: u32 = 65_535;
 
@@ -268,6 +271,9 @@ struct Pipelines {
     irradiance: wgpu::ComputePipeline,
     gradient: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
+    /// The light-tracing estimator's two entry points ([`tracing`]), one layout.
+    tracing_irradiance: wgpu::ComputePipeline,
+    tracing_gradient: wgpu::ComputePipeline,
 }
 
 impl Pipelines {
@@ -296,7 +302,15 @@ impl Pipelines {
         let gradient_group = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("light gradient"), entries: &gradient_entries });
         let gradient_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("light gradient"), bind_group_layouts: &[Some(&gradient_group)], immediate_size: 0 });
         let gradient_src = format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_gradient.wgsl"));
+        // The estimator: bindings 0 uniform, 1-6 read, 7 written, 8 read, 9 written.
+        let mut tracing_entries = vec![entry(0, wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Uniform, has_dynamic_offset: false, min_binding_size: None })];
+        tracing_entries.extend((1..=9).map(|b| entry(b, storage(b != 7 && b != 9))));
+        let tracing_group = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("light tracing"), entries: &tracing_entries });
+        let tracing_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("light tracing"), bind_group_layouts: &[Some(&tracing_group)], immediate_size: 0 });
+        let tracing_src = format!("{bvh}\n{}", include_str!("../../../shaders/light_tracing.wgsl"));
         Pipelines {
+            tracing_irradiance: make("light tracing irradiance", tracing_src.clone(), "irradiance", Some(&tracing_layout)),
+            tracing_gradient: make("light tracing gradient", tracing_src, "gradient", Some(&tracing_layout)),
             target: make("target", include_str!("../../../shaders/target.wgsl").to_string(), "main", None),
             trace: make("trace", format!("{rows}\n{bvh}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
             irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
@@ -321,19 +335,19 @@ pub struct GpuBackend {
 }
 
 /// A bind group of whole buffers, bound in order: binding `i` is `buffers[i]`.
-fn bind_group(device: &wgpu::Device, layout: &wgpu::BindGroupLayout, label: &str, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+pub(crate) fn bind_group(device: &wgpu::Device, layout: &wgpu::BindGroupLayout, label: &str, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry> = buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
     device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
 }
 
-fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+pub(crate) fn storage(device: &wgpu::Device, label: &str, bytes: &[u8]) -> wgpu::Buffer {
     // wgpu refuses zero-sized bindings: pad empty arrays to one element.
     let pad = [0u8; 16];
     let contents = if bytes.is_empty() { &pad[..] } else { bytes };
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST })
 }
 
-fn output(device: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
+pub(crate) fn output(device: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: size.max(16), usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC, mapped_at_creation: false })
 }
 
