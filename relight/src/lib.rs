@@ -8,7 +8,8 @@
 //! objective's rows ([`rows::luxel`] or the thesis's [`rows::projection`]); [`trace`]
 //! builds the BVH and caches visibility; [`model`] is the forward model, one module per
 //! term, with its gradient; [`fit`] drives the optimisers ([`optim`]) in phases on a
-//! [`backend`] (the CPU or [`gpu`]); [`init`] places the starting lights and searches the
+//! [`backend`] (the CPU or [`gpu`]), or on the thesis's estimator [`light_tracing`] as a
+//! baseline; [`init`] places the starting lights and searches the
 //! sun; [`pipeline`] runs the stages; [`io::lights_out`] writes the result and [`report`]
 //! the numbers; [`probe`] evaluates the model at one point; [`bake`] renders a file's own
 //! lights into its lightmap layout (EXR) beside the original and the residual.

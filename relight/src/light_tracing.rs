@@ -284,12 +284,12 @@ pub fn irradiance_cpu(sp: &Splat, bvh: &Bvh, lights: &[Light], rays_per_light: u
             n
         })
         .sum();
-    let e = (0..n_rows).map(|i| [0, 1, 2].map(|c| acc[3 * i + c].load(Ordering::Relaxed) as f64 * unit)).collect::<Vec<_>>();
     // Flux to irradiance: each row's deposits over its vertex area.
     let mut out = vec![[0.0f32; 3]; n_rows];
     for (v, &r) in sp.row.iter().enumerate() {
         if r != u32::MAX {
-            out[r as usize] = e[r as usize].map(|f| (f * sp.inv_area[v]) as f32);
+            let r = r as usize;
+            out[r] = [0, 1, 2].map(|c| (acc[3 * r + c].load(Ordering::Relaxed) as f64 * unit * sp.inv_area[v]) as f32);
         }
     }
     (out, rays)

@@ -4,8 +4,9 @@
 //! visibility of lights re-traced since the last call and run
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
-//! f64). The target projection's kernel is `shaders/target.wgsl`. Pipelines are built in
-//! one place, [`Pipelines`].
+//! f64). The target projection's kernel is `shaders/target.wgsl`; the light-tracing
+//! estimator's is `shaders/light_tracing.wgsl` ([`TracingGpu`]). Pipelines are built in one
+//! place, [`Pipelines`].
 
 use glam::Vec3;
 use wgpu::util::DeviceExt;

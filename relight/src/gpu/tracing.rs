@@ -164,23 +164,26 @@ impl TracingGpu {
         let acc = output(d, "deposits", size);
         let dummy = storage(d, "unused", &[]);
         let dummy_out = output(d, "unused", 16);
-        let mut total = vec![0u64; 3 * self.n_rows];
-        for batch in lights.chunks(MAX_GROUPS as usize) {
+        // Every batch adds into the same deposits; one read at the end.
+        let batches: Vec<&[Light]> = lights.chunks(MAX_GROUPS as usize).collect();
+        let mut last = None;
+        for (k, batch) in batches.iter().enumerate() {
             let params = self.params(batch.len(), unit);
             let enc = self.dispatch(&self.ctx.pipes.tracing_irradiance, &params, batch, &acc, &dummy, &dummy_out);
-            let data = self.ctx.read_back(&acc, size, enc)?;
-            let words: &[u32] = bytemuck::cast_slice(&data);
-            // The buffer keeps adding over batches: the last read is the total.
-            for (i, t) in total.iter_mut().enumerate() {
-                *t = words[2 * i] as u64 | (words[2 * i + 1] as u64) << 32;
+            if k + 1 < batches.len() {
+                self.ctx.queue.submit([enc.finish()]);
+            } else {
+                last = Some(enc);
             }
         }
+        let data = self.ctx.read_back(&acc, size, last.expect("at least one light"))?;
+        let words: &[u32] = bytemuck::cast_slice(&data);
         self.rays += (lights.len() * self.rays_per_light) as u64;
         let mut out = vec![[0.0f32; 3]; self.n_rows];
         for (v, &r) in self.splat.row.iter().enumerate() {
             if r != u32::MAX {
                 let r = r as usize;
-                out[r] = [0, 1, 2].map(|c| (total[3 * r + c] as f64 * unit * self.splat.inv_area[v]) as f32);
+                out[r] = [0, 1, 2].map(|c| ((words[2 * (3 * r + c)] as u64 | (words[2 * (3 * r + c) + 1] as u64) << 32) as f64 * unit * self.splat.inv_area[v]) as f32);
             }
         }
         Ok(out)
