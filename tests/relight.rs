@@ -129,6 +129,15 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     assert_recovered(&lights_of(&rv), &sample_truth(), [0.0; 3], 0.12, 0.03);
     let err_v = rv["rel_error_final"].as_f64().unwrap();
     assert!(err_v < 0.08, "vertex target: relative error {err_v}");
+    // Without subdivision every vertex is a polygon's corner, in the plane of the wall beside
+    // it: the placement's candidates must still come into the room (they once never did,
+    // leaving the ambient alone at 0.62; measured 0.49 with 10 lights).
+    let rep_c = dir.join("report-corners.json");
+    run(&["relight", gltf.to_str().unwrap(), "-o", dir.join("c.glb").to_str().unwrap(), "--target", "vertex", "--subdivide", "off", "--backend", "cpu", "--report", rep_c.to_str().unwrap(), "-q"]);
+    let rc = report(&rep_c);
+    assert!(rc["auto"]["added"].as_u64().unwrap() >= 2, "corner vertices: {}", rc["auto"]);
+    let err_c = rc["rel_error_final"].as_f64().unwrap();
+    assert!(err_c < 0.55, "corner vertices: relative error {err_c}");
 
     // Re-run on its own output with the lights as the start: not worse.
     let out2 = dir.join("sample.relit2.glb");

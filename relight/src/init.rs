@@ -55,6 +55,27 @@ pub fn free_space(mesh: &Mesh, bvh: &Bvh, p: Vec3, far: f32) -> bool {
     true
 }
 
+/// `p` moved off the surfaces it is closer than `min` to: pushed along the nearest
+/// triangle's front normal until it is `clear` away from that plane, a few times (a corner
+/// has three walls). A row at a polygon's corner (the vertex target without subdivision)
+/// stepped along its normal lies in the plane of the wall beside it; this brings such a
+/// candidate into the room. `None` if it is still too close after that.
+fn clear_of_surfaces(mesh: &Mesh, bvh: &Bvh, mut p: Vec3, min: f32, clear: f32) -> Option<Vec3> {
+    for _ in 0..4 {
+        let (d, c, t) = bvh.nearest_triangle(p)?;
+        if d >= min {
+            return Some(p);
+        }
+        let [a, b, e] = mesh.triangles.get(t as usize)?.map(|i| mesh.positions[i as usize]);
+        let nf = (b - a).cross(e - a).normalize_or_zero();
+        if nf == Vec3::ZERO {
+            return None;
+        }
+        p += nf * (clear - (p - c).dot(nf));
+    }
+    bvh.nearest(p).filter(|&(d, _)| d >= min).map(|_| p)
+}
+
 pub fn grid(n: usize, lo: Vec3, hi: Vec3) -> Vec<Light> {
     let n = n.max(1);
     let mut v = Vec::with_capacity(n * n);
@@ -134,9 +155,11 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             let (x0, n) = (sub.pos[i], sub.normal[i]);
             let h = bvh.first_hit(x0 + n * sub.sampling.ray_offset, n * (0.3 * diag), 1.0).map_or(0.3 * diag, |(t, _)| t * 0.3 * diag);
             for f in [0.2f32, 0.45, 0.7] {
-                let p = x0 + n * (f * h).max(2.0 * fit.min_dist);
-                if bvh.nearest(p).is_some_and(|(d, _)| d >= fit.min_dist) && free_space(mesh, bvh, p, 2.0 * diag) {
-                    cands.push(p);
+                let step = (f * h).max(2.0 * fit.min_dist);
+                if let Some(p) = clear_of_surfaces(mesh, bvh, x0 + n * step, fit.min_dist, step) {
+                    if free_space(mesh, bvh, p, 2.0 * diag) {
+                        cands.push(p);
+                    }
                 }
             }
         }

@@ -42,8 +42,11 @@ fn masked(g: &mut [f64], mask: &[bool]) {
     }
 }
 
+/// A `rel_tol` that never stops a run: it goes to its iteration limit.
+pub const NEVER: f64 = f64::NEG_INFINITY;
+
 /// Adam (Kingma and Ba) with step size `lr`; stops when the objective changed by less
-/// than `rel_tol` (relative) over 20 iterations.
+/// than `rel_tol` (relative) over 20 iterations ([`NEVER`]: runs to `max_iter`).
 pub fn adam(x0: &[f64], mask: &[bool], lr: f64, max_iter: usize, rel_tol: f64, f: &mut Objective, observe: &mut Observer) -> Outcome {
     let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8f64);
     let mut x = x0.to_vec();
@@ -233,6 +236,24 @@ mod tests {
         let o = adam(&[0.5, -2.0], &[true, true], 0.1, 100, 1e-6, &mut f, &mut never_stop());
         assert_eq!(o.x, vec![0.5, -2.0], "Adam with zero gradients moves nothing");
         assert!(o.f == 3.0);
+    }
+
+    /// A noisy objective whose values repeat by chance 20 iterations apart stops Adam as
+    /// converged; with [`NEVER`] (the sampled estimator) it runs to its limit.
+    #[test]
+    fn adam_runs_to_its_limit_on_a_sampled_objective() {
+        let noise = [0.0, 0.3, -0.2, 0.1];
+        let mut k = 0usize;
+        let mut f = |x: &[f64], _: bool| {
+            k += 1;
+            (x[0] * x[0] + 1.0 + noise[k % 4], vec![2.0 * x[0]])
+        };
+        let o = adam(&[1.0], &[true], 0.1, 100, 1e-5, &mut f, &mut never_stop());
+        assert_eq!(o.stop, Stop::Converged);
+        assert!(o.iterations < 100);
+        let o = adam(&[1.0], &[true], 0.1, 100, NEVER, &mut f, &mut never_stop());
+        assert_eq!((o.stop, o.iterations), (Stop::MaxIterations, 100));
+        assert!(o.f.is_finite());
     }
 
     /// An objective that no step lowers (a kink at the start, as at a shadow edge): L-BFGS's
