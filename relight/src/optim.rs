@@ -28,8 +28,10 @@ pub struct Outcome {
 }
 
 /// `f(x, fresh)`: `fresh = false` for line-search trials, which must see the same
-/// (cached) visibility as the current iterate so the search is over a smooth function;
-/// `fresh = true` at accepted iterates, where moved lights are re-traced.
+/// (cached) visibility as the current iterate so the search is over a smooth function,
+/// and need only the value (the gradient may come back empty: the accepted point is
+/// evaluated again, fresh); `fresh = true` at accepted iterates, where moved lights are
+/// re-traced, value and gradient.
 pub type Objective<'a> = dyn FnMut(&[f64], bool) -> (f64, Vec<f64>) + 'a;
 /// Called after each iteration with (iteration, objective); returns false to stop.
 pub type Observer<'a> = dyn FnMut(usize, f64) -> bool + 'a;
@@ -157,16 +159,15 @@ pub fn lbfgs(x0: &[f64], mask: &[bool], step0: f64, max_iter: usize, rel_tol: f6
         let mut accepted = None;
         for _ in 0..30 {
             let xn: Vec<f64> = x.iter().zip(&d).map(|(a, b)| a + t * b).collect();
-            let (fnew, mut gnew) = f(&xn, false);
+            let (fnew, _) = f(&xn, false);
             evals += 1;
-            masked(&mut gnew, mask);
             if fnew.is_finite() && fnew <= fx + 1e-4 * t * slope {
-                accepted = Some((xn, fnew, gnew));
+                accepted = Some(xn);
                 break;
             }
             t *= 0.5;
         }
-        let Some((xn, _, _)) = accepted else {
+        let Some(xn) = accepted else {
             if s_hist.is_empty() {
                 stop = Stop::LineSearchFailed;
                 break;

@@ -204,13 +204,14 @@ impl<'a> Fitter<'a> {
         }
     }
 
-    /// Like `eval_model` but with the visibility cache as it is (no re-trace).
-    pub fn eval_frozen(&mut self, m: &Model) -> Eval {
+    /// The objective and error of `m` (no gradient) with the visibility cache as it is (no
+    /// re-trace): a line-search trial.
+    pub fn value_frozen(&mut self, m: &Model) -> Eval {
         if self.failure.is_some() || self.vis.bits.len() != m.lights.len() || self.vis.sun.is_some() != m.sun.is_some() {
             return self.eval_model(m);
         }
         self.evaluations += 1;
-        match model::evaluate(m, self.rows, self.bases, &self.vis, self.backend) {
+        match model::value(m, self.rows, self.bases, &self.vis, self.backend) {
             Ok(ev) => ev,
             Err(e) => {
                 self.failure = Some(e);
@@ -268,10 +269,17 @@ impl<'a> Fitter<'a> {
             let mut objective = |x: &[f64], fresh: bool| -> (f64, Vec<f64>) {
                 let mut me = this.borrow_mut();
                 let m = me.codec.decode(&layout, x);
-                let ev = if fresh { me.eval_model(&m) } else { me.eval_frozen(&m) };
+                // A line-search trial needs the value only.
+                let ev = if fresh { me.eval_model(&m) } else { me.value_frozen(&m) };
                 let (pen, pgrad) = me.penalty(&m.lights);
                 last_err.set(ev.rel_error);
-                let g = if ev.f.is_finite() { me.codec.gradient(&m, x, &ev, &pgrad) } else { vec![0.0; x.len()] };
+                let g = if !fresh {
+                    Vec::new()
+                } else if ev.f.is_finite() {
+                    me.codec.gradient(&m, x, &ev, &pgrad)
+                } else {
+                    vec![0.0; x.len()]
+                };
                 (ev.f + pen, g)
             };
             let mut observe = |it: usize, f: f64| -> bool {

@@ -279,6 +279,17 @@ pub fn radiance(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
 
 /// Objective, relative error and gradient of every parameter.
 pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
+    evaluate_as(model, rows, bases, vis, backend, true)
+}
+
+/// [`evaluate`] without the gradient (its fields stay empty): the objective and the
+/// relative error only, for a line search's trials. The adjoint chain and the lights'
+/// gradient kernels are about half of an evaluation.
+pub fn value(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
+    evaluate_as(model, rows, bases, vis, backend, false)
+}
+
+fn evaluate_as(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, gradient: bool) -> Result<Eval> {
     let n = rows.len();
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
@@ -310,6 +321,9 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
         rho_x.extend(r);
     }
     ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    if !gradient {
+        return Ok(ev);
+    }
     // rho_T: through the albedo and the minlight floor.
     let mut rho_t = vec![[0.0f64; 3]; n];
     for i in 0..n {
