@@ -679,6 +679,12 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if terms.bounce != Optional::Off && bases.bounce.is_some() {
         start.bounce = Some([1.0; 3]);
     }
+    // A file relight wrote, started from its lights: the rest of the model as it states it.
+    if matches!(opts.init, Init::Input) && tracing.is_none() {
+        if let Some(m) = model::stated::resumed(&start, &scene, &bases) {
+            start = m;
+        }
+    }
     let input_lights: Vec<(Light, bool, usize)> = scene
         .lights
         .iter()
@@ -858,15 +864,17 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     drop(fit);
     progress.stage("write");
     // Emission: each surface group's fitted radiance on its materials; the sky light as
-    // the sky materials' uniform radiance.
+    // the sky materials' uniform radiance. A group or sky the fit switched off is written
+    // dark: the file states the light the fit used, no more (a renderer would add the
+    // source's emission to lights that already explain it, and a re-run would start
+    // from it).
     let mut emissive: Vec<(usize, [f64; 3])> = Vec::new();
     for (g, l) in bases.surfaces.groups.iter().zip(&m.surfaces) {
-        if let Some(l) = l {
-            emissive.extend(g.materials.iter().map(|&mi| (mi as usize, l.map(|v| v as f64))));
-        }
+        let radiance = l.unwrap_or([0.0; 3]).map(|v| v as f64);
+        emissive.extend(g.materials.iter().map(|&mi| (mi as usize, radiance)));
     }
-    if let (Some(k), Some(b)) = (m.sky, &bases.sky) {
-        let radiance = k.map(|v| (v * b.mean_cos_up) as f64 / std::f64::consts::PI);
+    if let Some(b) = &bases.sky {
+        let radiance = m.sky.map_or([0.0; 3], |k| k.map(|v| (v * b.mean_cos_up) as f64 / std::f64::consts::PI));
         for (mi, mat) in scene.materials.iter().enumerate() {
             if mat.sky && !emissive.iter().any(|e| e.0 == mi) {
                 emissive.push((mi, radiance));
@@ -1005,6 +1013,9 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
         }
     }
     list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None })));
+    // Which terms a model has on (the lights aside).
+    let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
+    let entry = (fit.model.clone(), fit.vis.clone(), fit.eval().rel_error);
     // The error of the model as it stands; a variant equal to it is not fitted again.
     let mut current = fit.fit_linear();
     for (name, choice, set) in list {
@@ -1039,6 +1050,13 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
         out.push(TermReport { term: name, kept: keep, rel_error_without: without.0, rel_error_with: with.0, note });
         let chosen = if keep { with } else { without };
         (current, fit.model, fit.vis) = chosen;
+    }
+    // The variants are compared after exact linear fits, which leave censored channels
+    // out and can be worse than what the phases reached: where the decision kept every
+    // term as it was, the entry stands unless the fits improved on it (a re-run from a
+    // relit file's own state starts and stays there).
+    if terms_of(&fit.model) == terms_of(&entry.0) && !(current < entry.2) {
+        (fit.model, fit.vis) = (entry.0, entry.1);
     }
 }
 

@@ -145,6 +145,12 @@ fn set_emission(m: &mut Value, radiance: [f64; 3]) {
     let Some(o) = m.as_object_mut() else { return };
     if !(peak > 0.0) {
         o.remove("emissiveFactor");
+        if let Some(e) = o.get_mut("extensions").and_then(Value::as_object_mut) {
+            e.remove("KHR_materials_emissive_strength");
+            if e.is_empty() {
+                o.remove("extensions");
+            }
+        }
         return;
     }
     let ext = o.entry("extensions").or_insert_with(|| json!({}));

@@ -59,22 +59,12 @@ pub fn stated(scene: &mut Scene, bounces: Option<usize>) -> Stated {
         notes.push(format!("{made} emissive materials without q3map2 surface-light extras lit as surface lights (no backsplash)"));
     }
     let groups = surface::patches(scene).0;
-    let surfaces: Vec<Option<[f32; 3]>> = groups
-        .iter()
-        .map(|g| g.materials.iter().map(|&m| scene.materials[m as usize].emission).find(|e| max3(*e) > 0.0))
-        .collect();
+    let surfaces = surface_emission(scene, &groups);
     let dark = surfaces.iter().filter(|s| s.is_none()).count();
     if dark > 0 {
         notes.push(format!("{dark} surface-light shaders have no emission in the file: left dark"));
     }
-    // The sky: its materials' emission, as relight writes it.
-    let sky_radiance = scene.materials.iter().filter(|m| m.sky).map(|m| m.emission).find(|e| max3(*e) > 0.0);
-    let sky = sky_radiance.and_then(|l| {
-        let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
-        let dirs = sky::directions(it);
-        let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / dirs.len().max(1) as f32;
-        (mean_cos_up > 0.0).then(|| l.map(|v| std::f32::consts::PI * v / mean_cos_up))
-    });
+    let sky = sky_of(scene);
     let relit = scene.relit.clone().unwrap_or_default();
     // The recorded bounce (its scale and passes), or the passes asked for at the recorded
     // scale (1 where none is recorded).
@@ -87,4 +77,43 @@ pub fn stated(scene: &mut Scene, bounces: Option<usize>) -> Stated {
         notes.push("no q3_relight scene extras (not relit, or exported from Blender without custom properties): no ambient, minlight, dirt or filter".into());
     }
     Stated { model: Model { lights, sun, sky, surfaces, ambient: relit.ambient, bounce, minlight: relit.minlight, gathered: None, dirt: relit.dirt, filter: relit.filter }, bounces: passes, notes }
+}
+
+/// Each surface-light group's emission in the file, W/(m^2 sr) (`None`: dark).
+fn surface_emission(scene: &Scene, groups: &[surface::Group]) -> Vec<Option<[f32; 3]>> {
+    groups.iter().map(|g| g.materials.iter().filter_map(|&m| scene.materials.get(m as usize)).map(|m| m.emission).find(|e| max3(*e) > 0.0)).collect()
+}
+
+/// The sky light `K` the sky materials' emission stands for, as relight writes it.
+fn sky_of(scene: &Scene) -> Option<[f32; 3]> {
+    let l = scene.materials.iter().filter(|m| m.sky).map(|m| m.emission).find(|e| max3(*e) > 0.0)?;
+    let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
+    let dirs = sky::directions(it);
+    let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / dirs.len().max(1) as f32;
+    (mean_cos_up > 0.0).then(|| l.map(|v| std::f32::consts::PI * v / mean_cos_up))
+}
+
+/// The start of `relight --init input` on a file that relight wrote (scene extras
+/// `q3_relight`): the terms as the file states them, in place of the declared ones of
+/// `start` (q3map2's source values of the surface lights and the sky, the compile's
+/// ambient), so that a re-run starts where the previous fit ended: a surface light it
+/// switched off stays dark, the ambient, minlight, bounce scale, dirt and filter are the
+/// fitted ones. Terms whose basis `bases` lacks stay as `start` has them. `None` for a
+/// file without those extras (a converted file, or one Blender exported without custom
+/// properties): the declared start stands.
+pub fn resumed(start: &Model, scene: &Scene, bases: &crate::model::Bases) -> Option<Model> {
+    let relit = scene.relit.as_ref()?;
+    let mut m = start.clone();
+    m.surfaces = surface_emission(scene, &bases.surfaces.groups);
+    if bases.sky.is_some() {
+        m.sky = sky_of(scene);
+    }
+    m.ambient = relit.ambient;
+    m.minlight = relit.minlight;
+    if bases.bounce.is_some() {
+        m.bounce = relit.bounce_scale.filter(|_| relit.bounces > 0);
+    }
+    m.dirt = relit.dirt && bases.dirt.is_some();
+    m.filter = relit.filter && bases.filter.is_some();
+    Some(m)
 }
