@@ -1015,7 +1015,12 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
     list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None })));
     // Which terms a model has on (the lights aside).
     let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
-    let entry = (fit.model.clone(), fit.vis.clone(), fit.eval().rel_error);
+    // The entry's error as the phases saw it (their visibility; the value only).
+    let entry_error = {
+        let m = fit.model.clone();
+        fit.value_frozen(&m).rel_error
+    };
+    let entry = (fit.model.clone(), fit.vis.clone(), entry_error);
     // The error of the model as it stands; a variant equal to it is not fitted again.
     let mut current = fit.fit_linear();
     for (name, choice, set) in list {

@@ -282,11 +282,26 @@ pub fn write(input: &Path, output: &Path, out: &Output) -> Result<()> {
             }
         }
         let used_strength = root.get("materials").and_then(Value::as_array).is_some_and(|ms| ms.iter().any(|m| m.get("extensions").and_then(|e| e.get("KHR_materials_emissive_strength")).is_some()));
+        // Listed exactly when a material uses it (emission written dark can leave none).
         let used = root.entry("extensionsUsed").or_insert_with(|| json!([]));
         if let Some(u) = used.as_array_mut() {
-            if used_strength && !u.iter().any(|v| v == "KHR_materials_emissive_strength") {
+            let listed = u.iter().any(|v| v == "KHR_materials_emissive_strength");
+            if used_strength && !listed {
                 u.push(json!("KHR_materials_emissive_strength"));
+            } else if !used_strength && listed {
+                u.retain(|v| v != "KHR_materials_emissive_strength");
             }
+        }
+        if let Some(r) = root.get_mut("extensionsRequired").and_then(Value::as_array_mut) {
+            if !used_strength {
+                r.retain(|v| v != "KHR_materials_emissive_strength");
+            }
+        }
+        if root.get("extensionsRequired").and_then(Value::as_array).is_some_and(|r| r.is_empty()) {
+            root.remove("extensionsRequired");
+        }
+        if root.get("extensionsUsed").and_then(Value::as_array).is_some_and(|u| u.is_empty()) {
+            root.remove("extensionsUsed");
         }
     }
     let scene_index = root.get("scene").and_then(Value::as_u64).unwrap_or(0) as usize;
