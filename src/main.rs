@@ -90,6 +90,12 @@ struct ConvertArgs {
     /// Leave out sky surfaces (otherwise they form their own "sky" node).
     #[arg(long = "no-sky")]
     no_sky: bool,
+    /// Keep opaque faces that overlap on one plane as the BSP has them. By default the
+    /// later face gives up the overlapping part (cut exactly, attributes interpolated):
+    /// the game draws both alike, but a ray tracer such as Cycles shadows one with the
+    /// other and renders the overlap black.
+    #[arg(long = "keep-overlaps")]
+    keep_overlaps: bool,
     /// Also write light entities (if the map kept them) and q3map_sun as
     /// KHR_lights_punctual lights, converted with q3map2's formula (candela, lux).
     #[arg(long = "entity-lights")]
@@ -181,6 +187,7 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
         scale: a.scale,
         patch_tolerance: a.patch_tolerance,
         no_sky: a.no_sky,
+        keep_overlaps: a.keep_overlaps,
         entity_lights: a.entity_lights,
         lights_from: a.lights_from.clone(),
         moz_lightmap: a.moz_lightmap,
@@ -217,6 +224,16 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
     );
     if c.repaired_normals > 0 {
         println!("  normals: {} zero BSP normals replaced by their triangles' mean normal", c.repaired_normals);
+    }
+    let o = &c.overlaps;
+    if o.triangles_cut + o.triangles_removed + o.triangles_left > 0 {
+        println!(
+            "  overlaps: {} triangles cut and {} removed where an earlier opaque face covers them on the same plane ({:.1} m2){}",
+            o.triangles_cut,
+            o.triangles_removed,
+            o.area_removed_m2,
+            if o.triangles_left > 0 { format!("; {} left whole (too many pieces)", o.triangles_left) } else { String::new() }
+        );
     }
     println!("  lighting: {} lightmapped, {} vertex-lit, {} unlit surfaces; {} lightmap pages in {} atlas image(s){}",
         c.lightmapped, c.vertex_lit, c.unlit, s.lightmap_pages, s.lightmap_atlases, if s.deluxe { " (deluxe map)" } else { "" });

@@ -350,6 +350,9 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     if let Some(m) = rep.residual_by_material.first() {
         println!("  residual  largest on {} ({:.0}% of it, its error {:.3})", m.material, 100.0 * m.residual_share, m.rel_error);
     }
+    if rep.kept_input_state {
+        println!("  kept      the input's own state: the refit ended worse than it");
+    }
     println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));

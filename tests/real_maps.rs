@@ -108,7 +108,9 @@ struct WindingReport {
 
 fn winding_report(pk3: &str, name: &str) -> WindingReport {
     let map = common::load_from(pk3, name);
-    let opts = Options::default();
+    // The BSP's triangles as they are (the overlap cut replaces some: tested below and in
+    // tests/python/test_coplanar_overlaps.py).
+    let opts = Options { keep_overlaps: true, ..Options::default() };
     let (scene, _) = build_scene(&map, &opts, &|_| {}).unwrap();
     let glb = gltf_out::to_glb(&scene, &gltf_out::WriteOptions::default());
     let (_, out) = read_glb(&glb);
@@ -218,7 +220,8 @@ fn atlas_texel_at_texcoord1_is_the_bsp_texel() {
         if bsp.lightmaps.is_empty() {
             continue;
         }
-        let opts = Options::default();
+        // At the BSP's own vertices (the overlap cut adds interpolated ones).
+        let opts = Options { keep_overlaps: true, ..Options::default() };
         let (scene, summary) = build_scene(&map, &opts, &|_| {}).unwrap();
         let glb = gltf_out::to_glb(&scene, &gltf_out::WriteOptions::default());
         let g = gltf::Gltf::from_slice(&glb).unwrap();
@@ -312,17 +315,27 @@ fn tri_area(p: [[f32; 3]; 3]) -> f64 {
 }
 
 /// The lightmapped area of the glTF equals that of the BSP's lightmapped faces (patches
-/// counted through their tessellation), within 1e-4 relative.
+/// counted through their tessellation), within 1e-4 relative, with the overlaps kept;
+/// cutting them (the default) takes away exactly the area it reports removed.
 #[test]
 fn lightmapped_area_is_preserved() {
     let maps = common::all_test_maps();
-    maps.par_iter().for_each(|(pk3, name)| {
+    let removed_total: f64 = maps.par_iter().map(|(pk3, name)| {
         let map = common::load_from(pk3, name);
-        let opts = Options::default();
+        let opts = Options { keep_overlaps: true, ..Options::default() };
         let (scene, summary) = build_scene(&map, &opts, &|_| {}).unwrap();
         let glb = gltf_out::to_glb(&scene, &gltf_out::WriteOptions::default());
         let (_, out) = read_glb(&glb);
         let a_out: f64 = out.iter().filter(|t| t.lightmapped).map(|t| tri_area(t.p)).sum();
+        let (cut_scene, cut_summary) = build_scene(&map, &Options::default(), &|_| {}).unwrap();
+        let (_, cut) = read_glb(&gltf_out::to_glb(&cut_scene, &gltf_out::WriteOptions::default()));
+        let (a_all, a_cut) = (out.iter().map(|t| tri_area(t.p)).sum::<f64>(), cut.iter().map(|t| tri_area(t.p)).sum::<f64>());
+        let removed = cut_summary.surfaces.overlaps.area_removed_m2;
+        assert!(
+            ((a_all - a_cut) - removed).abs() <= 1e-6 * a_all + 1e-6,
+            "{pk3}:{name}: the cut took {} m2, it reports {removed} m2",
+            a_all - a_cut
+        );
         let bsp = &map.bsp;
         let infos = shader_infos(&map);
         let step = if summary.deluxe { 2 } else { 1 };
@@ -365,7 +378,9 @@ fn lightmapped_area_is_preserved() {
         } else {
             assert_eq!(a_out, 0.0, "{pk3}:{name}: lightmapped triangles in a map without lightmaps");
         }
-    });
+        removed
+    }).sum();
+    assert!(removed_total > 100.0, "the maps have overlapping faces: {removed_total} m2 cut");
 }
 
 /// Patch tessellation on real maps: no T-junctions or cracks between neighbouring

@@ -14,6 +14,7 @@
 //! * [`texture`]: image files -> glTF-ready PNG/JPEG bytes, with limits.
 //! * [`entities`]: the entity lump; [`mapfile`]: the entities of a `.map` source.
 //! * [`patch`]: adaptive, stitched Bezier patch tessellation.
+//! * [`overlap`]: opaque faces overlapping on one plane, cut so a ray tracer sees one.
 //! * [`lightmaps`], [`atlas`]: lightmap pages and their packing.
 //! * [`units`]: axes, scale and the radiometric conversions.
 //! * [`scene`]: the converted scene; [`gltf_out`]: writing it as `.gltf`/`.glb`.
@@ -29,6 +30,7 @@ pub mod lightmaps;
 pub mod mapfile;
 pub mod material;
 pub mod output;
+pub mod overlap;
 pub mod patch;
 pub mod pipeline;
 pub mod scene;

@@ -61,6 +61,9 @@ pub struct Options {
     pub max_entry_bytes: u64,
     /// Most vertices that patch tessellation may create.
     pub max_patch_vertices: usize,
+    /// Keep opaque faces that overlap on one plane as the BSP has them (by default the
+    /// later one gives up the overlap: see [`crate::overlap`]).
+    pub keep_overlaps: bool,
 }
 
 impl Default for Options {
@@ -78,6 +81,7 @@ impl Default for Options {
             max_bsp_bytes: 1 << 30,
             max_entry_bytes: crate::vfs::DEFAULT_MAX_ENTRY_BYTES,
             max_patch_vertices: 20_000_000,
+            keep_overlaps: false,
         }
     }
 }
@@ -101,6 +105,8 @@ pub struct SurfaceCounts {
     pub invalid: usize,
     /// Vertices whose BSP normal was zero, given the mean normal of their triangles.
     pub repaired_normals: usize,
+    /// Opaque triangles cut or removed where an earlier face covers them on one plane.
+    pub overlaps: crate::overlap::OverlapCounts,
 }
 
 /// What a conversion did, for the report at the end.
@@ -332,6 +338,9 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     // Geometry per (model, sky, material).
     progress("building meshes");
     let mut prims: BTreeMap<(usize, bool, MaterialKey), scene::Primitive> = BTreeMap::new();
+    // Per primitive, which of its triangles are the world's own surfaces (brush faces and
+    // patches, not models' triangle soups).
+    let mut world_surface: BTreeMap<(usize, bool, MaterialKey), Vec<bool>> = BTreeMap::new();
     for si in 0..bsp.surfaces.len() {
         let s = &bsp.surfaces[si];
         if !matches!(s.kind, SurfaceType::Polygon | SurfaceType::Patch | SurfaceType::Mesh) || model_of[si].is_none() {
@@ -382,7 +391,32 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
             colors: (!matches!(lighting, Lighting::Lightmap(_))).then(Vec::new),
             ..Default::default()
         });
+        let before = prim.indices.len() / 3;
         summary.surfaces.repaired_normals += append_surface(prim, &geom, opts.scale, page.map(|p| (&atlas.placements[p], &atlas.images[atlas.placements[p].atlas])));
+        let faces = world_surface.entry(key).or_default();
+        faces.resize(before, false);
+        faces.resize(prim.indices.len() / 3, matches!(s.kind, SurfaceType::Polygon | SurfaceType::Patch));
+    }
+    if !opts.keep_overlaps {
+        // Brush faces and patches only (models keep the triangles their author made), per
+        // model, the opaque primitives in key order: earlier faces keep their area.
+        let mut by_model: BTreeMap<usize, (Vec<&mut scene::Primitive>, Vec<&[bool]>)> = BTreeMap::new();
+        for (key, prim) in prims.iter_mut() {
+            let (model, sky, (shader, _)) = *key;
+            if !sky && infos[shader as usize].alpha == scene::AlphaMode::Opaque {
+                let e = by_model.entry(model).or_default();
+                e.0.push(prim);
+                e.1.push(world_surface.get(key).map_or(&[][..], Vec::as_slice));
+            }
+        }
+        for (_, (mut list, faces)) in by_model {
+            let c = crate::overlap::cut_coplanar_overlaps(&mut list, &faces);
+            let s = &mut summary.surfaces.overlaps;
+            s.triangles_cut += c.triangles_cut;
+            s.triangles_removed += c.triangles_removed;
+            s.triangles_left += c.triangles_left;
+            s.area_removed_m2 += c.area_removed_m2;
+        }
     }
     lap(&mut summary, "meshes");
 

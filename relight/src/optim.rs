@@ -109,6 +109,10 @@ pub fn lbfgs(x0: &[f64], mask: &[bool], step0: f64, max_iter: usize, rel_tol: f6
     let mut stop = Stop::MaxIterations;
     let mut it = 0;
     let mut small = 0;
+    // The best point a fresh evaluation has seen: a step the trials accepted can turn out
+    // worse once its own shadows are traced, and the walk goes on from there, but the
+    // phase ends where it was best.
+    let mut best = (x.clone(), fx);
     while it < max_iter {
         it += 1;
         let gnorm = dot(&g, &g).sqrt();
@@ -195,6 +199,9 @@ pub fn lbfgs(x0: &[f64], mask: &[bool], step0: f64, max_iter: usize, rel_tol: f6
         g = gnew;
         let old = fx;
         fx = fnew;
+        if fx < best.1 {
+            best = (x.clone(), fx);
+        }
         if !observe(it, fx) {
             stop = Stop::Observer;
             break;
@@ -206,6 +213,7 @@ pub fn lbfgs(x0: &[f64], mask: &[bool], step0: f64, max_iter: usize, rel_tol: f6
             break;
         }
     }
+    let (x, fx) = if best.1 < fx { best } else { (x, fx) };
     Outcome { x, f: fx, iterations: it, evaluations: evals, stop }
 }
 
@@ -225,6 +233,22 @@ mod tests {
         };
         let o = lbfgs(&[-1.2, 1.0], &[true, true], 0.1, 500, 1e-12, &mut f, &mut never_stop());
         assert!((o.x[0] - 1.0).abs() < 1e-3 && (o.x[1] - 1.0).abs() < 1e-3, "{:?}", o);
+    }
+
+    /// Trials that see a stale objective (the shadows of the last re-trace) can accept a
+    /// step whose own evaluation is worse: L-BFGS walks on, but ends at the best point a
+    /// full evaluation saw, never above its start.
+    #[test]
+    fn lbfgs_ends_at_its_best_fresh_point() {
+        // The trials see (x - 2)^2; a full evaluation adds 10 beyond x = 1.5 (a wall).
+        let mut f = |x: &[f64], fresh: bool| {
+            let wall = if fresh && x[0] > 1.5 { 10.0 } else { 0.0 };
+            ((x[0] - 2.0).powi(2) + wall, vec![2.0 * (x[0] - 2.0)])
+        };
+        let o = lbfgs(&[0.0], &[true], 1.0, 20, 1e-12, &mut f, &mut never_stop());
+        assert!(o.f <= 4.0, "{o:?}");
+        assert_eq!(o.f, f(&o.x, true).0, "the value returned is the point's own: {o:?}");
+        assert!(o.x[0] <= 1.5, "{o:?}");
     }
 
     /// A flat objective (zero gradient): both stop at once where they started, finite.

@@ -302,6 +302,9 @@ pub struct Report {
     pub residual_by_material: Vec<MaterialResidual>,
     pub pruned: usize,
     pub merged: usize,
+    /// With `--init input`: the refit ended worse than the file's own state, which is
+    /// what was written (the lights and terms as the file stated them).
+    pub kept_input_state: bool,
     pub auto: Option<init::AutoStats>,
     pub phases: Vec<PhaseSummary>,
     pub iterations: Vec<IterRecord>,
@@ -750,6 +753,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // With --init input the start is the file as it is; otherwise the linear fit first.
     // The thesis's estimator starts from its grid as it is (dim white lights).
     let rel_error_initial = if matches!(opts.init, Init::Input) || tracing.is_some() { fit.eval().rel_error } else { fit.fit_linear() };
+    // The Blender loop's re-run starts from the file's own state: it must not end worse.
+    let entry = (matches!(opts.init, Init::Input) && tracing.is_none()).then(|| (fit.model.clone(), fit.locked.clone(), sources.clone(), rel_error_initial));
     st.done("start");
 
     fit.on_iter = Some(Box::new(|r: &IterRecord| progress.iteration(r)));
@@ -816,6 +821,21 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         fit.fit_linear();
         if !(fit.eval().f <= before) {
             fit.model = kept;
+        }
+    }
+    // With `--init input`, a refit that ends worse than the file's own state (pruning
+    // trades a little error for a light, the terms' decisions and polish are each
+    // guarded only against their own entry) gives the file's state back.
+    let mut kept_input_state = false;
+    if let Some((model, locked, entry_sources, e0)) = entry {
+        if fit.failure.is_none() && !(fit.eval().rel_error <= e0) {
+            fit.model = model;
+            fit.locked = locked;
+            sources = entry_sources;
+            fit.vis = crate::trace::visibility::Visibility::default();
+            fit.retrace_tol = 0.0;
+            fit.refresh_visibility();
+            kept_input_state = true;
         }
     }
     let final_eval = fit.eval();
@@ -967,6 +987,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         terms: term_reports,
         residual_by_material,
         pruned,
+        kept_input_state,
         merged,
         auto: auto_stats,
         phases: phases_done,
