@@ -160,7 +160,7 @@ fn cut_group(flat: &[[P2; 3]], sign: f64, to_plane: f64, counts: &mut OverlapCou
             counts.triangles_left += 1;
         } else if cut {
             let before = polygon_area(&tri[..]);
-            pieces.retain(|p| polygon_area(p) > MIN_PIECE_M2);
+            pieces.retain(|p| substantial(p, to_plane));
             let after: f64 = pieces.iter().map(|p| polygon_area(p)).sum();
             counts.area_removed_m2 += (before - after).max(0.0) * to_plane;
             if pieces.is_empty() {
@@ -284,6 +284,21 @@ fn split(poly: &[P2], a: P2, b: P2, sign: f64) -> (Vec<P2>, Vec<P2>) {
     (outside, inside)
 }
 
+/// A piece worth writing: area above `MIN_PIECE_M2` and wider than `MIN_WIDTH_M` (a
+/// sliver thinner than that is f32 rounding, not surface; `to_plane` undoes the
+/// projection's foreshortening of the area).
+fn substantial(p: &[P2], to_plane: f64) -> bool {
+    let area = polygon_area(p) * to_plane;
+    let longest = (0..p.len()).map(|i| {
+        let (a, b) = (p[i], p[(i + 1) % p.len()]);
+        ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt()
+    }).fold(0.0f64, f64::max) * to_plane;
+    area > MIN_PIECE_M2 && area > MIN_WIDTH_M * longest
+}
+
+/// Pieces thinner than this (metres: area over longest edge) are dropped.
+const MIN_WIDTH_M: f64 = 1e-4;
+
 fn signed_area(p: &[P2]) -> f64 {
     let mut s = 0.0;
     for i in 0..p.len() {
@@ -323,7 +338,7 @@ fn rebuild(p: &mut Primitive, cuts: &HashMap<usize, (usize, Vec<Vec<P2>>)>) {
             let verts: Vec<u32> = piece.iter().map(|&q| vertex_at(p, idx, &flat, whole, q)).collect();
             for k in 1..verts.len() - 1 {
                 let (a, b, c) = (piece[0], piece[k], piece[k + 1]);
-                if polygon_area(&[a, b, c]) > MIN_PIECE_M2 * 1e-3 {
+                if substantial(&[a, b, c], 1.0) {
                     indices.extend_from_slice(&[verts[0], verts[k], verts[k + 1]]);
                 }
             }
