@@ -46,6 +46,15 @@ pub struct OverlapCounts {
     pub area_removed_m2: f64,
 }
 
+impl std::ops::AddAssign for OverlapCounts {
+    fn add_assign(&mut self, o: OverlapCounts) {
+        self.triangles_cut += o.triangles_cut;
+        self.triangles_removed += o.triangles_removed;
+        self.triangles_left += o.triangles_left;
+        self.area_removed_m2 += o.area_removed_m2;
+    }
+}
+
 type P2 = [f64; 2];
 
 /// Removes, from each triangle of `prims`, the part that an earlier triangle of `prims`

@@ -410,12 +410,7 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
             }
         }
         for (_, (mut list, faces)) in by_model {
-            let c = crate::overlap::cut_coplanar_overlaps(&mut list, &faces);
-            let s = &mut summary.surfaces.overlaps;
-            s.triangles_cut += c.triangles_cut;
-            s.triangles_removed += c.triangles_removed;
-            s.triangles_left += c.triangles_left;
-            s.area_removed_m2 += c.area_removed_m2;
+            summary.surfaces.overlaps += crate::overlap::cut_coplanar_overlaps(&mut list, &faces);
         }
     }
     lap(&mut summary, "meshes");
