@@ -7,9 +7,11 @@
 //!   opposite surface, and only in free space (rays in 14 directions must all hit front
 //!   faces: never inside a wall or outside the map). The candidate that removes most of
 //!   the residual (exact one-light least squares) is added, everything is refitted with a
-//!   short L-BFGS; if that gains less than `min_gain`, the next-best candidates are
-//!   tried (up to [`TRIES_PER_ROUND`]), and adding stops when none does or `max_lights`
-//!   is reached.
+//!   short L-BFGS; if that gains less than `min_gain`, the next-best candidates over other
+//!   rows are tried (up to [`TRIES_PER_ROUND`] rows a round). Rows whose candidates failed
+//!   are not picked again, so a round that adds nothing is followed by one that looks
+//!   elsewhere; adding stops after [`FAILED_ROUNDS`] such rounds in a row, or at
+//!   `max_lights`.
 //! - `input`: the lights of the glTF (handled by the caller).
 
 use glam::Vec3;
@@ -95,6 +97,8 @@ pub struct AutoStats {
     pub sample_vertices: usize,
     pub candidates_tried: usize,
     pub added: usize,
+    /// Candidates refitted that gained less than `min_gain` (their rows are not picked again).
+    pub failed_tries: usize,
     /// Relative error on the subsample after each addition.
     pub errors: Vec<f64>,
     /// The placement's own iterations (on the subsample), for the report's curve.
@@ -110,6 +114,9 @@ pub struct AutoStats {
 /// Candidates tried, best score first, before a round that adds no light stops the placement.
 const TRIES_PER_ROUND: usize = 3;
 
+/// Rounds in a row that add no light before the placement stops (each looks at other rows).
+const FAILED_ROUNDS: usize = 3;
+
 pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Vec3, model: &Model, locked: &[bool], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Model, AutoStats) {
     let (sub, take) = rows.subsample(sample, seed);
     let sub_bases = bases.subset(&take);
@@ -122,7 +129,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     for (l, &k) in model.lights.iter().zip(locked) {
         fit.add_light(*l, k);
     }
-    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, errors: Vec::new(), history: Vec::new() };
+    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, failed_tries: 0, errors: Vec::new(), history: Vec::new() };
     let mut err = fit.fit_linear();
     if !err.is_finite() {
         err = 1.0;
@@ -131,6 +138,11 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     // Which subsample rows each candidate position sees (its shadow rays), by position.
     let key = |p: Vec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
     let mut visible: std::collections::HashMap<[u32; 3], Vec<u32>> = std::collections::HashMap::new();
+    // Rows whose candidates were tried and failed: later rounds look elsewhere (the most
+    // unexplained rows are often ones no point light explains, and would be picked again
+    // every round).
+    let mut failed: Vec<Vec3> = Vec::new();
+    let mut strikes = 0;
     while fit.model.lights.len() < max_lights && !fit.out_of_time() {
         let x = match crate::model::radiance(&fit.model, &sub, &sub_bases, &fit.vis, &mut Cpu { rows: &sub, bvh }) {
             Ok(x) => x,
@@ -149,19 +161,20 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             if picked.len() >= 16 {
                 break;
             }
-            if picked.iter().all(|&j| (sub.pos[j] - sub.pos[i]).length() > spacing) {
+            if picked.iter().all(|&j| (sub.pos[j] - sub.pos[i]).length() > spacing) && failed.iter().all(|&q| (q - sub.pos[i]).length() > spacing) {
                 picked.push(i);
             }
         }
-        let mut cands = Vec::new();
-        for &i in &picked {
+        // Each candidate with the row it stands over (`picked`'s index).
+        let mut cands: Vec<(Vec3, usize)> = Vec::new();
+        for (k, &i) in picked.iter().enumerate() {
             let (x0, n) = (sub.pos[i], sub.normal[i]);
             let h = bvh.first_hit(x0 + n * sub.sampling.ray_offset, n * (0.3 * diag), 1.0).map_or(0.3 * diag, |(t, _)| t * 0.3 * diag);
             for f in [0.2f32, 0.45, 0.7] {
                 let step = (f * h).max(2.0 * fit.min_dist);
                 if let Some(p) = clear_of_surfaces(mesh, bvh, x0 + n * step, fit.min_dist, step) {
                     if free_space(mesh, bvh, p, 2.0 * diag) {
-                        cands.push(p);
+                        cands.push((p, k));
                     }
                 }
             }
@@ -174,18 +187,18 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
         // candidate's light through the dirt factor; filter and bounce are not on the
         // subsample).
         let dirt = if fit.model.dirt { sub_bases.dirt.as_deref() } else { None };
-        let scored: Vec<(f64, Vec3, [f32; 3])> = {
+        let scored: Vec<(f64, Vec3, [f32; 3], usize)> = {
             use rayon::prelude::*;
             // The same rows stay the most unexplained for several rounds, so the same
             // candidates come back (on oa_dm1 307 distinct of 3025): their shadow rays are
             // traced once.
-            let fresh: Vec<Vec3> = cands.iter().copied().filter(|p| !visible.contains_key(&key(*p))).collect();
+            let fresh: Vec<Vec3> = cands.iter().map(|c| c.0).filter(|p| !visible.contains_key(&key(*p))).collect();
             let traced: Vec<Vec<u32>> = fresh.par_iter().map(|&p| visibility::trace_light(bvh, &sub, p, f32::INFINITY)).collect();
             visible.extend(fresh.iter().map(|p| key(*p)).zip(traced));
             let visible = &visible;
             cands
                 .par_iter()
-                .map(|&p| {
+                .map(|&(p, k)| {
                     let bits = &visible[&key(p)];
                     let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
                     let probe = Light::point(p, [1e30; 3]);
@@ -204,16 +217,25 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
                     }
                     let score: f64 = (0..3).map(|c| if g2[c] > 0.0 && h[c] > 0.0 { h[c] * h[c] / g2[c] } else { 0.0 }).sum();
                     let rgb = [0, 1, 2].map(|c| if g2[c] > 0.0 { (h[c] / g2[c]).max(0.0) as f32 } else { 0.0 });
-                    (score, p, rgb)
+                    (score, p, rgb, k)
                 })
                 .collect()
         };
         let mut scored = scored;
         scored.sort_by(|a, b| b.0.total_cmp(&a.0));
         // The best-scored candidate can fail once refitted (its one-light score ignores how
-        // the others move); the next ones are tried before the placement stops.
+        // the others move); the next ones are tried, each over a different row (the
+        // heights over one row tend to fail together).
         let mut added = false;
-        for best in scored.iter().take(TRIES_PER_ROUND) {
+        let mut tried_rows: Vec<usize> = Vec::new();
+        for best in scored.iter() {
+            if tried_rows.len() >= TRIES_PER_ROUND {
+                break;
+            }
+            if tried_rows.contains(&best.3) {
+                continue;
+            }
+            tried_rows.push(best.3);
             if !(best.0 > 0.0) || fit.out_of_time() {
                 break;
             }
@@ -231,6 +253,8 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             }
             if err - e < min_gain {
                 (fit.model, fit.locked, fit.vis) = saved;
+                failed.push(sub.pos[picked[best.3]]);
+                stats.failed_tries += 1;
                 continue;
             }
             stats.errors.push(e);
@@ -239,8 +263,13 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             added = true;
             break;
         }
-        if !added {
-            break;
+        if added {
+            strikes = 0;
+        } else {
+            strikes += 1;
+            if strikes >= FAILED_ROUNDS {
+                break;
+            }
         }
     }
     stats.history = std::mem::take(&mut fit.history);
