@@ -242,10 +242,13 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
             let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
             fit.add_light(Light::point(best.1, best.2.map(|c| c.max(floor).max(1e-9))), false);
-            let e0 = fit.fit_linear();
+            // The solves without fit_linear's guard: this loop keeps the better state itself.
+            fit.refresh_visibility();
+            let e0 = fit.solve_linear();
             let placed = (fit.model.clone(), fit.vis.clone());
             fit.run_phase("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 });
-            let mut e = fit.fit_linear();
+            fit.refresh_visibility();
+            let mut e = fit.solve_linear();
             if !(e <= e0) {
                 // The short refinement made things worse (a light slid behind a wall): undo it.
                 (fit.model, fit.vis) = placed;
