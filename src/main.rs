@@ -4,6 +4,7 @@
 //! is done by the library crates (`q3gltf-convert`, `q3gltf-relight`).
 
 mod bake_cmd;
+mod memory;
 mod relight_cmd;
 
 use clap::{Args, Parser, Subcommand};
@@ -141,6 +142,7 @@ fn source_of(map: &str) -> MapSource {
 fn main() -> ExitCode {
     // An interrupted run removes its temporary files and leaves no partial output.
     q3gltf_convert::output::remove_temporaries_on_signal();
+    memory::keep_freed_memory();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Convert(a) => run_convert(a),

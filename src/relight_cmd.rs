@@ -357,7 +357,11 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
     let what = if matches!(rep.estimator, Estimator::Tracing { .. }) { "light paths traced" } else { "shadow rays" };
-    println!("  rays      {} {what}, {} objective evaluations", rep.rays_traced, rep.evaluations);
+    let (phase_rays, phase_trace_s) = rep.phases.iter().fold((0u64, 0.0f64), |(r, t), p| (r + p.rays, t + p.trace_s));
+    println!(
+        "  rays      {} {what}, {} objective evaluations; the fit's phases re-traced {phase_rays} rays in {phase_trace_s:.2} s",
+        rep.rays_traced, rep.evaluations
+    );
     if let Some(b) = &baked {
         println!("  bake      {} files in {} (error {:.4}, {:.2} s)", b.files.len(), b.out_dir, b.rel_error.unwrap_or(f64::NAN), b.seconds);
     }

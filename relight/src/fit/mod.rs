@@ -67,6 +67,10 @@ pub struct PhaseSummary {
     pub evaluations: usize,
     pub stop: Stop,
     pub time_s: f64,
+    /// Of `time_s`, the seconds spent re-tracing shadows of lights that moved (and the sun).
+    pub trace_s: f64,
+    /// Shadow rays traced in the phase (the visibility cache's; 0 for the sampled estimator).
+    pub rays: u64,
     pub rel_error_before: f64,
     pub rel_error_after: f64,
 }
@@ -98,6 +102,8 @@ pub struct Fitter<'a> {
     pub start: Instant,
     pub deadline: Option<Instant>,
     pub evaluations: usize,
+    /// Seconds spent re-tracing visibility (`retrace`), over the fitter's life.
+    pub trace_s: f64,
     pub phase_index: usize,
     /// Called after every iteration (progress display).
     pub on_iter: Option<Box<dyn FnMut(&IterRecord) + 'a>>,
@@ -133,6 +139,7 @@ impl<'a> Fitter<'a> {
             start: Instant::now(),
             deadline: None,
             evaluations: 0,
+            trace_s: 0.0,
             phase_index: 0,
             on_iter: None,
             failure: None,
@@ -163,6 +170,13 @@ impl<'a> Fitter<'a> {
 
     /// Brings the visibility up to date with `m` (lights that moved, the sun if it turned).
     fn retrace(&mut self, m: &Model) -> crate::error::Result<()> {
+        let t0 = Instant::now();
+        let r = self.retrace_untimed(m);
+        self.trace_s += t0.elapsed().as_secs_f64();
+        r
+    }
+
+    fn retrace_untimed(&mut self, m: &Model) -> crate::error::Result<()> {
         let n = self.rows.len();
         let (bvh, rows, sky) = (self.bvh, self.rows, &self.bases.sky_triangles);
         self.vis.update_sun(m.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| visibility::trace_sun(bvh, rows, d, sky));
@@ -254,6 +268,7 @@ impl<'a> Fitter<'a> {
     /// Runs one phase; returns its summary (also appended to `phases`).
     pub fn run_phase(&mut self, name: &str, phase: Phase) -> PhaseSummary {
         let t0 = Instant::now();
+        let (trace0, rays0) = (self.trace_s, self.vis.rays);
         let start_eval = self.eval();
         let before = start_eval.rel_error;
         let start = (self.model.clone(), start_eval.f + self.penalty(&self.model.lights).0);
@@ -312,6 +327,8 @@ impl<'a> Fitter<'a> {
             evaluations: outcome.evaluations,
             stop: outcome.stop,
             time_s: t0.elapsed().as_secs_f64(),
+            trace_s: self.trace_s - trace0,
+            rays: self.vis.rays.saturating_sub(rays0),
             rel_error_before: before,
             rel_error_after: end_eval.rel_error,
         };
