@@ -111,7 +111,8 @@ pub struct AutoStats {
 /// (`locked` says which are the user's locked ones); new lights are placed for what it
 /// leaves unexplained. `start_time` is the clock of the run, for the iteration records.
 #[allow(clippy::too_many_arguments)]
-/// Candidates tried, best score first, before a round that adds no light stops the placement.
+/// Rows whose best-scored candidate a round refits (best score first) before it ends
+/// without a light.
 const TRIES_PER_ROUND: usize = 3;
 
 /// Rounds in a row that add no light before the placement stops (each looks at other rows).

@@ -212,6 +212,47 @@ def test_the_sky_and_glass_cast_no_shadow(bpy, workdir):
     assert lit == pytest.approx(3.0 / math.pi, rel=1e-3)
 
 
+def test_the_camera_sees_the_skys_image_through_a_vertex_colour_mix(bpy, workdir):
+    """An unlit sky material imports with its image multiplied by the vertex colours (a Mix
+    node before the base colour). The camera-only copy (`sky_as_seen`) must show that image,
+    not the Mix socket's default white: oacmpdm4's star sky rendered as a white band. Under
+    relight's sky emission (0.9) the camera sees the image's 0.2."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    sky = bpy.data.objects.new("sky", None)
+    bpy.context.scene.collection.objects.link(sky)
+    mat = bpy.data.materials.new("textures/skies/stars#unlit")
+    mat["q3_lighting"] = "none"
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    image = bpy.data.images.new("stars", 4, 4, float_buffer=True)
+    image.colorspace_settings.name = "Linear Rec.709"
+    image.pixels = [0.2, 0.2, 0.2, 1.0] * 16
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    vcol = nodes.new("ShaderNodeVertexColor")
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    mix.blend_type = "MULTIPLY"
+    mix.inputs["Factor"].default_value = 1.0
+    links.new(tex.outputs["Color"], mix.inputs[6])
+    links.new(vcol.outputs["Color"], mix.inputs[7])
+    links.new(mix.outputs[2], bsdf.inputs["Base Color"])
+    bsdf.inputs["Emission Color"].default_value = (0.9, 0.9, 0.9, 1.0)  # relight's sky light
+    bsdf.inputs["Emission Strength"].default_value = 1.0
+    bpy.ops.mesh.primitive_plane_add(size=4.0)
+    plane = bpy.context.object
+    plane.parent = sky
+    plane.data.materials.append(mat)
+    lightmap_preview.relit_materials()
+    copy = next(o for o in bpy.data.objects if o.get("q3_sky_copy"))
+    emit = next(n for n in copy.material_slots[0].material.node_tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    assert emit.inputs["Color"].is_linked, "the copy shows a flat colour, not the sky's image"
+    assert emit.inputs["Color"].links[0].from_node.image == image
+    pixel = _mean_seen_from_above(bpy, workdir / "sky_seen.exr")
+    print(f"\nthe sky as the camera sees it: {pixel:.4f} (its image 0.2, its emission 0.9)")
+    assert pixel == pytest.approx(0.2, rel=0.02)
+
+
 def test_bounced_light_carries_the_fits_bounce_scale(bpy, workdir):
     """A floor lit only by a wall that a horizontal sun lights (one bounce): with the fit's
     bounce scale s in the scene extras, relit_materials makes the floor s times as bright

@@ -323,6 +323,22 @@ def sky_materials() -> set:
             for slot in o.material_slots if slot.material is not None}
 
 
+def _base_image(bsdf):
+    """The image texture node behind a Principled BSDF's base colour: linked directly, or
+    through one Mix node (the importer multiplies an unlit or vertex-lit material's image
+    by its vertex colours: COLOR_0). None where there is none."""
+    base = bsdf.inputs["Base Color"]
+    if not base.is_linked:
+        return None
+    src = base.links[0].from_node
+    if src.bl_idname == "ShaderNodeTexImage":
+        return src
+    if src.bl_idname in ("ShaderNodeMix", "ShaderNodeMixRGB"):
+        return next((l.from_node for i in src.inputs if i.is_linked for l in i.links
+                     if l.from_node.bl_idname == "ShaderNodeTexImage"), None)
+    return None
+
+
 def sky_as_seen() -> int:
     """The camera sees the sky's texture (as the game draws it, at full brightness), not
     the sky light relight wrote as its emission, which still lights the scene: each object
@@ -343,19 +359,22 @@ def sky_as_seen() -> int:
         out = nodes.new("ShaderNodeOutputMaterial")
         m.node_tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
         bsdf = _principled(mat) if mat is not None and mat.node_tree is not None else None
-        if bsdf is not None and bsdf.inputs["Base Color"].is_linked:
-            src = bsdf.inputs["Base Color"].links[0].from_node
-            if src.bl_idname == "ShaderNodeTexImage":
-                tex = nodes.new("ShaderNodeTexImage")
-                tex.image = src.image
-                uv = src.inputs["Vector"].links[0].from_node if src.inputs["Vector"].is_linked else None
-                if uv is not None and uv.bl_idname == "ShaderNodeUVMap":
-                    uvn = nodes.new("ShaderNodeUVMap")
-                    uvn.uv_map = uv.uv_map
-                    m.node_tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-                m.node_tree.links.new(tex.outputs["Color"], emit.inputs["Color"])
-        elif bsdf is not None:
+        src = _base_image(bsdf) if bsdf is not None else None
+        if src is not None:
+            tex = nodes.new("ShaderNodeTexImage")
+            tex.image = src.image
+            uv = src.inputs["Vector"].links[0].from_node if src.inputs["Vector"].is_linked else None
+            if uv is not None and uv.bl_idname == "ShaderNodeUVMap":
+                uvn = nodes.new("ShaderNodeUVMap")
+                uvn.uv_map = uv.uv_map
+                m.node_tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+            m.node_tree.links.new(tex.outputs["Color"], emit.inputs["Color"])
+        elif bsdf is not None and not bsdf.inputs["Base Color"].is_linked:
             emit.inputs["Color"].default_value = bsdf.inputs["Base Color"].default_value
+        else:
+            # A base colour from something other than an image: black rather than the
+            # socket's unused default (white).
+            emit.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
         m.cycles.emission_sampling = "NONE"  # lights nothing
         looks[mat] = m
         return m

@@ -69,7 +69,8 @@ pub struct PhaseSummary {
     pub time_s: f64,
     /// Of `time_s`, the seconds spent re-tracing shadows of lights that moved (and the sun).
     pub trace_s: f64,
-    /// Shadow rays traced in the phase (the visibility cache's; 0 for the sampled estimator).
+    /// Shadow rays re-traced in the phase, counted as the report's `rays_traced` (rows times
+    /// lights re-traced; 0 for the sampled estimator, which does not use the cache).
     pub rays: u64,
     pub rel_error_before: f64,
     pub rel_error_after: f64,
