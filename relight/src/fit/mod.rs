@@ -271,6 +271,7 @@ impl<'a> Fitter<'a> {
         let t0 = Instant::now();
         let (trace0, rays0) = (self.trace_s, self.vis.rays);
         let start_eval = self.eval();
+        let start_vis = self.vis.clone();
         let before = start_eval.rel_error;
         let start = (self.model.clone(), start_eval.f + self.penalty(&self.model.lights).0);
         let x0 = self.codec.encode(&self.model);
@@ -318,8 +319,15 @@ impl<'a> Fitter<'a> {
         self.model = self.codec.decode(&layout, &outcome.x);
         let mut end_eval = self.eval();
         if !(end_eval.f + self.penalty(&self.model.lights).0 <= start.1) {
+            // Undone: the start's model with the shadows it was evaluated with. Re-tracing
+            // would not give them back: a light is re-traced only beyond the tolerance, so
+            // the cache may hold another position's shadows within it (on `suspended` the
+            // start re-evaluated 1.3% above itself, and the phase seemed to end worse).
+            let rays = self.vis.rays;
             self.model = start.0;
-            end_eval = self.eval();
+            self.vis = start_vis;
+            self.vis.rays = rays;
+            end_eval = start_eval;
         }
         let s = PhaseSummary {
             name: name.to_string(),
