@@ -236,6 +236,14 @@ fn the_default_fit_holds_across_placement_subsamples() {
         let rep = dir.join(format!("{seed}.json"));
         run(&["relight", out.to_str().unwrap(), "-o", dir.join("relit.glb").to_str().unwrap(), "--backend", "cpu", "--seed", seed, "--report", rep.to_str().unwrap(), "-q"]);
         let r = report(&rep);
+        // Each phase's re-traces are part of its time and of the run's rays.
+        let phases = r["phases"].as_array().unwrap();
+        for p in phases {
+            let (t, tr) = (p["time_s"].as_f64().unwrap(), p["trace_s"].as_f64().unwrap());
+            assert!((0.0..=t).contains(&tr), "--seed {seed} {}: {tr} s re-tracing of {t} s", p["name"]);
+        }
+        let phase_rays: u64 = phases.iter().map(|p| p["rays"].as_u64().unwrap()).sum();
+        assert!(phase_rays <= r["rays_traced"].as_u64().unwrap(), "--seed {seed}: the phases re-traced {phase_rays} rays of {}", r["rays_traced"]);
         errors.push((seed, r["rel_error_final"].as_f64().unwrap(), r["lights"].as_array().unwrap().len()));
     }
     for &(seed, e, n) in &errors {

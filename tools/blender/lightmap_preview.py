@@ -150,18 +150,10 @@ def _image_and_light(mat, kind):
     image or colour attribute; None for unlit), from convert's wiring after import."""
     bsdf = _principled(mat)
     base = bsdf.inputs["Base Color"]
-    image = light = None
-    if base.is_linked:
-        src = base.links[0].from_node
-        if src.bl_idname == "ShaderNodeTexImage":
-            image = src
-        elif src.bl_idname == "ShaderNodeMix":
-            for sock in src.inputs:
-                for l in sock.links:
-                    if l.from_node.bl_idname == "ShaderNodeTexImage":
-                        image = l.from_node
-                    elif kind == "vertex" and l.from_node.bl_idname in ("ShaderNodeVertexColor", "ShaderNodeAttribute"):
-                        light = l.from_socket
+    image, light = _base_image(bsdf), None
+    if kind == "vertex" and base.is_linked and base.links[0].from_node.bl_idname == "ShaderNodeMix":
+        light = next((l.from_socket for sock in base.links[0].from_node.inputs for l in sock.links
+                      if l.from_node.bl_idname in ("ShaderNodeVertexColor", "ShaderNodeAttribute")), None)
     if kind == "lightmap":
         lm = lightmap_image_node(mat)
         lm.image.colorspace_settings.name = "Non-Color"
