@@ -234,7 +234,7 @@ fn run_convert(a: ConvertArgs) -> Result<(), q3gltf_convert::Error> {
             o.triangles_cut,
             o.triangles_removed,
             o.area_removed_m2,
-            if o.triangles_left > 0 { format!("; {} left whole (too many pieces)", o.triangles_left) } else { String::new() }
+            if o.triangles_left > 0 { format!("; {} left whole (too many pieces, or past the work budget)", o.triangles_left) } else { String::new() }
         );
     }
     println!("  lighting: {} lightmapped, {} vertex-lit, {} unlit surfaces; {} lightmap pages in {} atlas image(s){}",

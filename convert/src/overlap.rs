@@ -32,6 +32,14 @@ const MIN_PIECE_M2: f64 = 1e-10;
 /// Most pieces one triangle may be cut into; beyond it the triangle stays whole (a
 /// bound on the work a hostile file can ask for).
 const MAX_PIECES: usize = 256;
+/// Most work one conversion may spend on cutting overlaps, in units of one grid cell
+/// visited or one piece-against-cover test (the budget [`cut_coplanar_overlaps`] draws
+/// on; the whole budget took 0.38 s on one core of the 2-core EPYC, in the test
+/// `a_hostile_stack_stops_at_the_work_budget` at 30 000 triangles). The 85 maps of
+/// OpenArena and oacmp1 spend at most 1.2 million (oacmpdm8); a file that asks for more
+/// (thousands of triangles on one plane, each cutting the next) keeps the rest of its
+/// triangles whole instead of taking minutes (the fuzzer found one that took over 20 s).
+pub const WORK_BUDGET: u64 = 10_000_000;
 
 /// What [`cut_coplanar_overlaps`] did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
@@ -40,8 +48,11 @@ pub struct OverlapCounts {
     pub triangles_cut: usize,
     /// Triangles wholly covered by earlier coplanar faces, removed.
     pub triangles_removed: usize,
-    /// Triangles left whole because cutting them would take more than `MAX_PIECES`.
+    /// Triangles left whole because cutting them would take more than `MAX_PIECES`,
+    /// or more than what was left of the work budget.
     pub triangles_left: usize,
+    /// Work spent, in the units of [`WORK_BUDGET`].
+    pub work: u64,
     /// The area removed, square metres.
     pub area_removed_m2: f64,
 }
@@ -51,6 +62,7 @@ impl std::ops::AddAssign for OverlapCounts {
         self.triangles_cut += o.triangles_cut;
         self.triangles_removed += o.triangles_removed;
         self.triangles_left += o.triangles_left;
+        self.work += o.work;
         self.area_removed_m2 += o.area_removed_m2;
     }
 }
@@ -62,7 +74,12 @@ type P2 = [f64; 2];
 /// of their triangles. Every primitive given must be opaque and belong to one model.
 /// Only the triangles that `eligible[prim][triangle]` marks take part (missing entries
 /// count as eligible): they are neither cut nor cut others.
-pub fn cut_coplanar_overlaps(prims: &mut [&mut Primitive], eligible: &[&[bool]]) -> OverlapCounts {
+///
+/// `budget` is the work still allowed (start from [`WORK_BUDGET`] and pass the same
+/// counter to every call of one conversion); the work done is taken from it. When it
+/// runs out, the triangle being cut and every later one are left whole (counted in
+/// [`OverlapCounts::triangles_left`]).
+pub fn cut_coplanar_overlaps(prims: &mut [&mut Primitive], eligible: &[&[bool]], budget: &mut u64) -> OverlapCounts {
     let mut counts = OverlapCounts::default();
     // Every non-degenerate triangle, with its plane.
     struct Tri {
@@ -119,7 +136,7 @@ pub fn cut_coplanar_overlaps(prims: &mut [&mut Primitive], eligible: &[&[bool]])
                 // The sign of a front-facing triangle's area in this projection.
                 let sign = if n[axis] >= 0.0 { 1.0 } else { -1.0 };
                 // Areas in this projection are |n[axis]| times the plane's own.
-                for (gi, pieces) in cut_group(&flat, sign, 1.0 / n[axis].abs(), &mut counts) {
+                for (gi, pieces) in cut_group(&flat, sign, 1.0 / n[axis].abs(), budget, &mut counts) {
                     let t = &tris[group[gi]];
                     cuts[t.prim].insert(t.tri, (axis, pieces));
                 }
@@ -136,19 +153,35 @@ pub fn cut_coplanar_overlaps(prims: &mut [&mut Primitive], eligible: &[&[bool]])
 }
 
 /// The pieces each cut triangle of one plane keeps (group index -> pieces; none when
-/// it is wholly covered). Triangles that lose nothing are not listed.
-fn cut_group(flat: &[[P2; 3]], sign: f64, to_plane: f64, counts: &mut OverlapCounts) -> Vec<(usize, Vec<Vec<P2>>)> {
+/// it is wholly covered). Triangles that lose nothing are not listed. Takes its tests
+/// from `budget` (see [`cut_coplanar_overlaps`]).
+fn cut_group(flat: &[[P2; 3]], sign: f64, to_plane: f64, budget: &mut u64, counts: &mut OverlapCounts) -> Vec<(usize, Vec<Vec<P2>>)> {
     let area_total: f64 = flat.iter().map(|t| (signed_area(t) * sign).max(0.0)).sum();
     let mut grid = Grid::new((area_total / flat.len() as f64).sqrt().max(1e-3) * 2.0);
+    let boxes: Vec<(P2, P2)> = flat.iter().map(|t| bounds(t)).collect();
     let mut out = Vec::new();
     for (i, tri) in flat.iter().enumerate() {
-        let lo = [tri[0][0].min(tri[1][0]).min(tri[2][0]), tri[0][1].min(tri[1][1]).min(tri[2][1])];
-        let hi = [tri[0][0].max(tri[1][0]).max(tri[2][0]), tri[0][1].max(tri[1][1]).max(tri[2][1])];
+        let (lo, hi) = boxes[i];
+        let Some(candidates) = grid.query(lo, hi, budget, &mut counts.work) else {
+            counts.triangles_left += 1;
+            continue;
+        };
         let mut pieces: Vec<Vec<P2>> = vec![tri.to_vec()];
         let mut cut = false;
         let mut too_many = false;
-        for k in grid.query(lo, hi) {
+        for k in candidates {
             let cover = &flat[k];
+            let (clo, chi) = boxes[k];
+            if clo[0] > hi[0] || clo[1] > hi[1] || chi[0] < lo[0] || chi[1] < lo[1] {
+                continue; // a neighbour in the grid, not over this triangle
+            }
+            if pieces.is_empty() {
+                break; // wholly covered already
+            }
+            if !spend(budget, &mut counts.work, pieces.len()) {
+                too_many = true;
+                break;
+            }
             let mut next = Vec::with_capacity(pieces.len());
             for piece in pieces {
                 let inside = clip_to_triangle(&piece, cover, sign);
@@ -172,16 +205,41 @@ fn cut_group(flat: &[[P2; 3]], sign: f64, to_plane: f64, counts: &mut OverlapCou
             pieces.retain(|p| substantial(p, to_plane));
             let after: f64 = pieces.iter().map(|p| polygon_area(p)).sum();
             counts.area_removed_m2 += (before - after).max(0.0) * to_plane;
-            if pieces.is_empty() {
+            let covered = pieces.is_empty();
+            if covered {
                 counts.triangles_removed += 1;
             } else {
                 counts.triangles_cut += 1;
             }
             out.push((i, pieces));
+            if covered {
+                continue; // what it covers, earlier triangles cover: later ones test those
+            }
         }
-        grid.insert(i, lo, hi);
+        grid.insert(i, lo, hi, budget, &mut counts.work);
     }
     out
+}
+
+/// Takes `units` of work from `budget` and adds them to `spent`; false (and the
+/// budget emptied) when fewer are left.
+fn spend(budget: &mut u64, spent: &mut u64, units: usize) -> bool {
+    let units = units as u64;
+    if *budget < units {
+        *budget = 0;
+        return false;
+    }
+    *budget -= units;
+    *spent += units;
+    true
+}
+
+/// The bounding box (lowest, highest corner) of a triangle in the projection.
+fn bounds(t: &[P2; 3]) -> (P2, P2) {
+    (
+        [t[0][0].min(t[1][0]).min(t[2][0]), t[0][1].min(t[1][1]).min(t[2][1])],
+        [t[0][0].max(t[1][0]).max(t[2][0]), t[0][1].max(t[1][1]).max(t[2][1])],
+    )
 }
 
 /// A uniform grid over one plane's triangles, for the covering candidates of a box.
@@ -204,10 +262,19 @@ impl Grid {
         ((c(lo[0]), c(hi[0])), (c(lo[1]), c(hi[1])))
     }
 
-    fn insert(&mut self, id: usize, lo: P2, hi: P2) {
+    /// Registers triangle `id` over the cells of its box, one unit of work each (a
+    /// triangle the budget cannot pay for is not registered: every later one is left
+    /// whole anyway).
+    fn insert(&mut self, id: usize, lo: P2, hi: P2, budget: &mut u64, spent: &mut u64) {
         let ((x0, x1), (y0, y1)) = self.range(lo, hi);
-        if (x1 - x0 + 1).saturating_mul(y1 - y0 + 1) > Self::MAX_CELLS {
-            self.big.push(id);
+        let cells = (x1 - x0 + 1).saturating_mul(y1 - y0 + 1);
+        if cells > Self::MAX_CELLS {
+            if spend(budget, spent, 1) {
+                self.big.push(id);
+            }
+            return;
+        }
+        if !spend(budget, spent, cells as usize) {
             return;
         }
         for x in x0..=x1 {
@@ -217,13 +284,23 @@ impl Grid {
         }
     }
 
-    /// Registered triangles whose cells meet the box, each once, in insertion order.
-    fn query(&self, lo: P2, hi: P2) -> Vec<usize> {
+    /// Registered triangles whose cells meet the box, each once, in insertion order;
+    /// one unit of work per cell and per entry visited. None when the budget cannot pay.
+    fn query(&self, lo: P2, hi: P2, budget: &mut u64, spent: &mut u64) -> Option<Vec<usize>> {
         let ((x0, x1), (y0, y1)) = self.range(lo, hi);
+        let cells = (x1 - x0 + 1).saturating_mul(y1 - y0 + 1);
         let mut found: Vec<usize> = self.big.clone();
-        if (x1 - x0 + 1).saturating_mul(y1 - y0 + 1) > Self::MAX_CELLS {
+        if cells > Self::MAX_CELLS {
+            let entries: usize = self.cells.values().map(Vec::len).sum();
+            if !spend(budget, spent, self.big.len() + self.cells.len() + entries) {
+                return None;
+            }
             found.extend(self.cells.values().flatten().copied());
         } else {
+            let entries: usize = (x0..=x1).flat_map(|x| (y0..=y1).map(move |y| (x, y))).filter_map(|c| self.cells.get(&c)).map(Vec::len).sum();
+            if !spend(budget, spent, self.big.len() + cells as usize + entries) {
+                return None;
+            }
             for x in x0..=x1 {
                 for y in y0..=y1 {
                     if let Some(v) = self.cells.get(&(x, y)) {
@@ -234,7 +311,7 @@ impl Grid {
         }
         found.sort_unstable();
         found.dedup();
-        found
+        Some(found)
     }
 }
 
@@ -477,7 +554,7 @@ mod tests {
         let mut trim = Primitive::default();
         quad(&mut trim, 1.0, 0.5, 3.0, 1.5, 1.0); // half of it on the floor
         let before = area_and_normals(&trim).0;
-        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut trim], &[]);
+        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut trim], &[], &mut WORK_BUDGET.clone());
         assert_eq!(counts.triangles_removed, 0);
         assert!(counts.triangles_cut >= 1, "{counts:?}");
         assert!((counts.area_removed_m2 - 1.0).abs() < 1e-9, "{counts:?}");
@@ -504,7 +581,7 @@ mod tests {
         let mut patch = Primitive::default();
         quad(&mut patch, 0.5, 0.5, 1.5, 1.5, 1.0);
         let floor_before = floor.clone();
-        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut patch], &[]);
+        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut patch], &[], &mut WORK_BUDGET.clone());
         assert_eq!(counts.triangles_removed, 2, "{counts:?}");
         assert!(patch.indices.is_empty());
         assert_eq!(floor.indices, floor_before.indices);
@@ -522,8 +599,8 @@ mod tests {
         for t in under.indices.chunks_exact_mut(3) {
             t.swap(1, 2); // facing down
         }
-        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut above, &mut under], &[]);
-        assert_eq!(counts, OverlapCounts::default());
+        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut above, &mut under], &[], &mut WORK_BUDGET.clone());
+        assert_eq!(OverlapCounts { work: 0, ..counts }, OverlapCounts::default());
     }
 
     #[test]
@@ -532,8 +609,8 @@ mod tests {
         quad(&mut floor, 0.0, 0.0, 2.0, 2.0, 1.0);
         let mut model = Primitive::default();
         quad(&mut model, 0.5, 0.5, 1.5, 1.5, 1.0);
-        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut model], &[&[true, true], &[false, false]]);
-        assert_eq!(counts, OverlapCounts::default());
+        let counts = cut_coplanar_overlaps(&mut [&mut floor, &mut model], &[&[true, true], &[false, false]], &mut WORK_BUDGET.clone());
+        assert_eq!(OverlapCounts { work: 0, ..counts }, OverlapCounts::default());
         assert_eq!(model.indices.len(), 6);
     }
 
@@ -548,10 +625,63 @@ mod tests {
             })
             .collect();
         let mut refs: Vec<&mut Primitive> = prims.iter_mut().collect();
-        let counts = cut_coplanar_overlaps(&mut refs, &[]);
+        let counts = cut_coplanar_overlaps(&mut refs, &[], &mut WORK_BUDGET.clone());
         let total: f64 = prims.iter().map(|p| area_and_normals(p).0).sum();
         let union = 39.0 * 0.25 + 1.0;
         assert!((total - union).abs() < 1e-6, "{total} vs {union}, {counts:?}");
         assert!((counts.area_removed_m2 - (40.0 - union)).abs() < 1e-6);
+    }
+
+    /// Triangles turning about one point on one plane: each cuts every later one into
+    /// pieces, so without a budget the work grows as the square of their number.
+    fn fan_of_turned_triangles(n: usize) -> Primitive {
+        let mut p = Primitive::default();
+        for i in 0..n {
+            let a = i as f64 * 0.7;
+            let base = p.positions.len() as u32;
+            for k in 0..3 {
+                let t = a + k as f64 * std::f64::consts::TAU / 3.0;
+                let (x, z) = ((2.0 * t.cos()) as f32, (2.0 * t.sin()) as f32);
+                p.positions.push([x, 0.0, z]);
+                p.normals.push([0.0, 1.0, 0.0]);
+                p.uv0.push([x, z]);
+            }
+            // Counter-clockwise seen from +y is (x, z) turning from z towards x: reversed.
+            p.indices.extend_from_slice(&[base, base + 2, base + 1]);
+        }
+        p
+    }
+
+    #[test]
+    fn a_hostile_stack_stops_at_the_work_budget() {
+        let mut p = fan_of_turned_triangles(3000);
+        let before = area_and_normals(&p);
+        assert!(before.1, "the fan faces +y");
+        let mut budget = 100_000;
+        let counts = cut_coplanar_overlaps(&mut [&mut p], &[], &mut budget);
+        assert_eq!(budget, 0, "{counts:?}");
+        assert!(counts.work <= 100_000, "{counts:?}");
+        assert!(counts.triangles_left > 1000, "the triangles past the budget stay whole: {counts:?}");
+        assert!(counts.triangles_cut + counts.triangles_removed > 10, "{counts:?}");
+        // What was cut is still on the plane, facing the same way.
+        assert!(area_and_normals(&p).1);
+    }
+
+    #[test]
+    fn a_stack_of_one_triangle_costs_work_linear_in_its_copies() {
+        // Copies wholly covered are not registered as covers: 1000 copies of one
+        // triangle take a few units of work each (one cell, one entry, one test), not
+        // the half a million tests of each copy against every earlier one.
+        let mut p = Primitive::default();
+        quad(&mut p, 0.0, 0.0, 1.0, 1.0, 0.0);
+        p.indices.truncate(3);
+        let tri = p.indices.clone();
+        for _ in 1..1000 {
+            p.indices.extend_from_slice(&tri);
+        }
+        let counts = cut_coplanar_overlaps(&mut [&mut p], &[], &mut WORK_BUDGET.clone());
+        assert_eq!(counts.triangles_removed, 999, "{counts:?}");
+        assert!(counts.work <= 4 * 1000, "{counts:?}");
+        assert_eq!(p.indices, tri);
     }
 }

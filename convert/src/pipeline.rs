@@ -409,8 +409,9 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
                 e.1.push(world_surface.get(key).map_or(&[][..], Vec::as_slice));
             }
         }
+        let mut budget = crate::overlap::WORK_BUDGET;
         for (_, (mut list, faces)) in by_model {
-            summary.surfaces.overlaps += crate::overlap::cut_coplanar_overlaps(&mut list, &faces);
+            summary.surfaces.overlaps += crate::overlap::cut_coplanar_overlaps(&mut list, &faces, &mut budget);
         }
     }
     lap(&mut summary, "meshes");
