@@ -1164,13 +1164,10 @@ fn energy_shares(rows: &Rows, fit: &Fitter) -> Vec<f64> {
         if j >= fit.vis.bits.len() {
             continue;
         }
-        for i in 0..rows.len() {
-            if !fit.vis.visible(j, i) {
-                continue;
-            }
+        fit.vis.for_each_visible(j, 0..rows.len(), |i| {
             let g = model::lights::g(rows, i, l) as f64;
             e[j] += rows.area[i] as f64 * (0..3).map(|c| rows.albedo[i][c] as f64 * l.rgb[c] as f64).sum::<f64>() * g;
-        }
+        });
     }
     let total: f64 = e.iter().sum();
     e.iter().map(|v| if total > 0.0 { v / total } else { 0.0 }).collect()

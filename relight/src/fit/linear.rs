@@ -213,27 +213,37 @@ impl Fitter<'_> {
         let dirt = if m.dirt { bases.dirt.as_deref() } else { None };
         let nonlocal = (m.filter && bases.filter.is_some()) || (m.bounce.is_some() && bases.bounce.is_some());
         let dense = nonlocal && cols.len() <= DENSE_COLUMNS;
-        // Per row: (column, per-unit direct irradiance) for the sparse path; the gathered
-        // column is in radiance already.
-        let unit_direct = |i: usize, out: &mut Vec<(usize, f64)>| {
-            out.clear();
+        // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
+        // column order; the gathered column is in radiance already. Light columns run
+        // over the rows their light reaches (`for_each_visible`), the rest row by row.
+        let unit_direct = |block: std::ops::Range<usize>, out: &mut Vec<Vec<(usize, f64)>>| {
+            out.resize_with(block.len(), Vec::new);
+            out.iter_mut().for_each(Vec::clear);
+            let base = block.start;
             for (c, col) in cols.iter().enumerate() {
-                let v = match *col {
+                let mut put = |i: usize, v: f64| {
+                    if v != 0.0 {
+                        out[i - base].push((c, v));
+                    }
+                };
+                match *col {
                     Col::Light(j) => {
-                        if !self.vis.visible(j, i) {
-                            continue;
-                        }
                         let l = &m.lights[j];
                         // The falloff cut depends on the intensity: taken at the current one.
-                        lights::g(rows, i, l) as f64
+                        self.vis.for_each_visible(j, block.clone(), |i| put(i, lights::g(rows, i, l) as f64));
                     }
-                    Col::Sun => m.sun.map_or(0.0, |s| s.cos_at(rows, &self.vis, i) as f64),
-                    Col::Sky => bases.sky.as_ref().map_or(0.0, |b| b.d[i] as f64),
-                    Col::Surface(s) => bases.surfaces.row(i).iter().filter(|e| e.0 as usize == s).map(|e| e.1 as f64).sum(),
-                    Col::Ambient | Col::Gathered => continue,
-                };
-                if v != 0.0 {
-                    out.push((c, v));
+                    Col::Sun => {
+                        if let Some(s) = m.sun {
+                            block.clone().for_each(|i| put(i, s.cos_at(rows, &self.vis, i) as f64));
+                        }
+                    }
+                    Col::Sky => {
+                        if let Some(b) = bases.sky.as_ref() {
+                            block.clone().for_each(|i| put(i, b.d[i] as f64));
+                        }
+                    }
+                    Col::Surface(s) => block.clone().for_each(|i| put(i, bases.surfaces.row(i).iter().filter(|e| e.0 as usize == s).map(|e| e.1 as f64).sum())),
+                    Col::Ambient | Col::Gathered => {}
                 }
             }
         };
@@ -265,12 +275,14 @@ impl Fitter<'_> {
             .map(|ci| {
                 let mut gram = vec![vec![0.0f64; k * k]; 3];
                 let mut rhs = vec![vec![0.0f64; k]; 3];
-                let mut nz: Vec<(usize, f64)> = Vec::new();
+                let mut block_nz: Vec<Vec<(usize, f64)>> = Vec::new();
                 let mut basis: Vec<(usize, f64)> = Vec::new();
-                for i in ci * chunk..((ci + 1) * chunk).min(n) {
-                    if dense_cols.is_none() {
-                        unit_direct(i, &mut nz);
-                    }
+                let block = ci * chunk..((ci + 1) * chunk).min(n);
+                if dense_cols.is_none() {
+                    unit_direct(block.clone(), &mut block_nz);
+                }
+                for i in block.clone() {
+                    let nz: &[(usize, f64)] = block_nz.get(i - block.start).map_or(&[], Vec::as_slice);
                     for c in 0..3 {
                         let w = rows.area[i] as f64 * rows.weight[i][c] as f64;
                         if w == 0.0 || floor[i][c] {

@@ -206,26 +206,33 @@ pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
     g
 }
 
-/// Irradiance of every light at every row, W/m^2 per channel (CPU backend).
+/// Rows per block of the CPU loops below (a multiple of 32: whole visibility words).
+const BLOCK_ROWS: usize = 4096;
+
+/// Irradiance of every light at every row, W/m^2 per channel (CPU backend). Each block
+/// of rows runs light by light over the rows the light reaches
+/// ([`Visibility::for_each_visible`]), so a light that reaches few rows costs little;
+/// each row still sums its lights in their order, in f64.
 pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
-    (0..rows.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut e = [0.0f64; 3];
-            for (j, l) in lights.iter().enumerate() {
-                if !vis.visible(j, i) {
-                    continue;
-                }
+    let mut out = vec![[0.0f32; 3]; rows.len()];
+    out.par_chunks_mut(BLOCK_ROWS).enumerate().for_each(|(bi, block)| {
+        let base = bi * BLOCK_ROWS;
+        let mut e = vec![[0.0f64; 3]; block.len()];
+        for (j, l) in lights.iter().enumerate() {
+            vis.for_each_visible(j, base..base + block.len(), |i| {
                 let g = g(rows, i, l);
                 if g != 0.0 {
                     for c in 0..3 {
-                        e[c] += l.rgb[c] as f64 * g as f64;
+                        e[i - base][c] += l.rgb[c] as f64 * g as f64;
                     }
                 }
-            }
-            e.map(|v| v as f32)
-        })
-        .collect()
+            });
+        }
+        for (o, v) in block.iter_mut().zip(e) {
+            *o = v.map(|x| x as f32);
+        }
+    });
+    out
 }
 
 /// Derivatives of the objective with respect to one light's parameters.
@@ -256,25 +263,24 @@ impl LightGrad {
 /// f64 sums).
 pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Vec<LightGrad> {
     let k = lights.len();
-    let chunk = 4096;
+    let chunk = BLOCK_ROWS;
     (0..rows.len().div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
             let mut g = vec![LightGrad::default(); k];
-            for i in ci * chunk..((ci + 1) * chunk).min(rows.len()) {
-                let r = rho[i];
-                if r == [0.0; 3] {
-                    continue;
-                }
-                for (j, l) in lights.iter().enumerate() {
-                    if !vis.visible(j, i) {
-                        continue;
+            let block = ci * chunk..((ci + 1) * chunk).min(rows.len());
+            // Light by light over the rows it reaches, each light's rows in order.
+            for (j, l) in lights.iter().enumerate() {
+                let gj = &mut g[j];
+                vis.for_each_visible(j, block.clone(), |i| {
+                    let r = rho[i];
+                    if r == [0.0; 3] {
+                        return;
                     }
                     let t = term(rows, i, l);
                     if t.g == 0.0 {
-                        continue;
+                        return;
                     }
-                    let gj = &mut g[j];
                     let mut s = 0.0f64;
                     for c in 0..3 {
                         gj.rgb[c] += r[c] as f64 * t.g as f64;
@@ -285,7 +291,7 @@ pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]
                         gj.axis[q] += s * t.da[q] as f64;
                     }
                     gj.radius_by_dist += s * t.dr as f64;
-                }
+                });
             }
             g
         })
@@ -303,6 +309,99 @@ pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Visibility bits for `lights` over `n` rows: light `j` sees row `i` on a pattern
+    /// with whole empty words, empty blocks and a partial last word.
+    fn patterned_visibility(n: usize, k: usize) -> Visibility {
+        let words = n.div_ceil(32);
+        let mut vis = Visibility::default();
+        for j in 0..k {
+            let mut bits = vec![0u32; words];
+            for i in 0..n {
+                let seen = match j % 3 {
+                    0 => (i * 7 + j) % 5 != 0,            // most rows
+                    1 => (i / 32) % 9 == j % 9 && i % 3 != 1, // a few words
+                    _ => (5000..5100).contains(&i) || i + 3 >= n, // one stretch and the end
+                };
+                if seen {
+                    bits[i >> 5] |= 1 << (i & 31);
+                }
+            }
+            vis.bits.push(bits);
+            vis.traced_at.push(Vec3::ZERO);
+            vis.traced_reach.push(f32::INFINITY);
+        }
+        vis
+    }
+
+    /// The light-by-light loops give, bit for bit, what a row-by-row loop over every
+    /// light gives (each row sums its lights in the same order).
+    #[test]
+    fn light_by_light_loops_equal_the_row_by_row_reference() {
+        let (_, rows) = crate::testutil::room(40);
+        let n = rows.len();
+        assert!(n > 2 * BLOCK_ROWS && n % 32 != 0, "{n} rows: several blocks, a partial word");
+        let lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [1.0 + j as f32, 2.0, 0.5])).collect();
+        let vis = patterned_visibility(n, lights.len());
+        let reference: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let mut e = [0.0f64; 3];
+                for (j, l) in lights.iter().enumerate() {
+                    if vis.visible(j, i) {
+                        let g = g(&rows, i, l);
+                        for c in 0..3 {
+                            e[c] += l.rgb[c] as f64 * g as f64;
+                        }
+                    }
+                }
+                e.map(|v| v as f32)
+            })
+            .collect();
+        assert_eq!(irradiance(&rows, &vis, &lights), reference);
+        assert!(reference.iter().filter(|e| e[0] > 0.0).count() > n / 2);
+        // The gradient against a row-by-row sum, per light and block as the loop sums.
+        let rho: Vec<[f32; 3]> = (0..n).map(|i| if i % 11 == 0 { [0.0; 3] } else { [0.3, -0.2, (i % 7) as f32 * 0.1] }).collect();
+        let got = gradient(&rows, &vis, &lights, &rho);
+        for (j, l) in lights.iter().enumerate() {
+            // Sums and sums of magnitudes (the rounding scale of a reordered sum).
+            let (mut want, mut size) = (LightGrad::default(), LightGrad::default());
+            for i in 0..n {
+                if !vis.visible(j, i) || rho[i] == [0.0; 3] {
+                    continue;
+                }
+                let t = term(&rows, i, l);
+                let mut s = 0.0f64;
+                for c in 0..3 {
+                    want.rgb[c] += rho[i][c] as f64 * t.g as f64;
+                    size.rgb[c] += (rho[i][c] as f64 * t.g as f64).abs();
+                    s += rho[i][c] as f64 * l.rgb[c] as f64;
+                }
+                for q in 0..3 {
+                    want.pos[q] += s * t.dp[q] as f64;
+                    size.pos[q] += (s * t.dp[q] as f64).abs();
+                }
+            }
+            assert!(size.rgb[0] > 0.0, "light {j} reaches rows");
+            for q in 0..3 {
+                assert!((got[j].rgb[q] - want.rgb[q]).abs() <= 1e-12 * size.rgb[q], "light {j} rgb {q}: {:?} vs {want:?}", got[j]);
+                assert!((got[j].pos[q] - want.pos[q]).abs() <= 1e-12 * size.pos[q], "light {j} pos {q}: {:?} vs {want:?}", got[j]);
+            }
+        }
+    }
+
+    /// `for_each_visible` visits exactly the set bits inside the range, in order.
+    #[test]
+    fn for_each_visible_visits_the_set_bits_of_the_range() {
+        let vis = patterned_visibility(1000, 3);
+        for j in 0..3 {
+            for (a, b) in [(0, 1000), (5, 37), (31, 33), (64, 64), (990, 1000), (100, 997)] {
+                let mut seen = Vec::new();
+                vis.for_each_visible(j, a..b, |i| seen.push(i));
+                let want: Vec<usize> = (a..b).filter(|&i| vis.visible(j, i)).collect();
+                assert_eq!(seen, want, "light {j}, rows {a}..{b}");
+            }
+        }
+    }
 
     /// The cone follows q3map2: full inside, a 32-unit linear ramp at the edge, nothing
     /// outside or behind; its derivatives match central differences.

@@ -33,6 +33,32 @@ impl Visibility {
         self.bits[light][vertex >> 5] >> (vertex & 31) & 1 == 1
     }
 
+    /// Calls `f(row)` for every row in `rows` that light `light` reaches, in ascending
+    /// order, 32 rows per word: a word with no bit set costs one test (a light whose
+    /// reach or shadows leave most rows dark is skipped over them at once).
+    #[inline]
+    pub fn for_each_visible(&self, light: usize, rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
+        let bits = &self.bits[light];
+        if rows.is_empty() {
+            return;
+        }
+        let (w0, w1) = (rows.start >> 5, (rows.end + 31) >> 5);
+        for w in w0..w1.min(bits.len()) {
+            let mut word = bits[w];
+            if w == w0 {
+                word &= u32::MAX << (rows.start & 31);
+            }
+            if w + 1 == w1 && rows.end & 31 != 0 {
+                word &= (1u32 << (rows.end & 31)) - 1;
+            }
+            while word != 0 {
+                let i = (w << 5) | word.trailing_zeros() as usize;
+                word &= word - 1;
+                f(i);
+            }
+        }
+    }
+
     /// Whether the sun (as last traced) reaches `vertex`.
     #[inline]
     pub fn sun_visible(&self, vertex: usize) -> bool {
