@@ -76,7 +76,19 @@ pub struct Patch {
 /// covers, positive when its winding faces the point.
 pub fn form_factor(point: Vec3, normal: Vec3, verts: &[Vec3]) -> f32 {
     let n = verts.len();
-    let dirs: Vec<Vec3> = verts.iter().map(|v| (*v - point).normalize_or_zero()).collect();
+    // The directions to the corners, on the stack for the windings q3map2's cuts make
+    // (called for every row and patch: no allocation there).
+    let mut on_stack = [Vec3::ZERO; 16];
+    let mut on_heap = Vec::new();
+    let dirs: &mut [Vec3] = if n <= on_stack.len() {
+        &mut on_stack[..n]
+    } else {
+        on_heap.resize(n, Vec3::ZERO);
+        &mut on_heap
+    };
+    for (d, v) in dirs.iter_mut().zip(verts) {
+        *d = (*v - point).normalize_or_zero();
+    }
     let mut total = 0.0f64;
     for i in 0..n {
         let (a, b) = (dirs[i], dirs[(i + 1) % n]);
@@ -234,6 +246,9 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
             let (x, n) = (rows.pos[i], rows.normal[i]);
             let mut acc: Vec<(u32, f32)> = Vec::new();
             let mut rays = 0u64;
+            // The occluder of this row's previous shadow ray, tried first (neighbouring
+            // patches are mostly hidden by the same wall; the answer is the same).
+            let mut last = crate::trace::bvh::Occluder::default();
             for (p, bpf) in patches.iter().zip(&bytes_per_ff) {
                 // The light origin behind the sample's plane: nothing.
                 if (p.origin - x).dot(n) < 0.0 {
@@ -260,7 +275,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 rays += 1;
-                if !crate::trace::visibility::visible_from(bvh, x, n, p.origin, s) {
+                if !crate::trace::visibility::visible_after(bvh, x, n, p.origin, s, &mut last) {
                     continue;
                 }
                 let v = std::f32::consts::PI * ff * p.weight;
@@ -350,6 +365,27 @@ mod tests {
         // A huge square covers nearly the whole hemisphere.
         let big: Vec<Vec3> = sq.iter().map(|p| Vec3::new(p.x * 1e4, p.y, p.z * 1e4)).collect();
         assert!((form_factor(Vec3::ZERO, Vec3::Y, &big) - 1.0).abs() < 1e-3);
+    }
+
+    /// A regular polygon right above a point lies between its inscribed and its
+    /// circumscribed disc (form factor `r^2 / (r^2 + h^2)` each), with few corners (on
+    /// the stack) or many (past the stack's 16, on the heap).
+    #[test]
+    fn form_factor_of_regular_polygons_lies_between_their_discs() {
+        let (r, h) = (1.2f64, 0.8f64);
+        let disc = |r: f64| r * r / (r * r + h * h);
+        for n in [5usize, 16, 17, 24, 40] {
+            // Seen from below, facing the point: the angle decreasing round the winding.
+            let verts: Vec<Vec3> = (0..n)
+                .map(|k| {
+                    let t = -std::f64::consts::TAU * k as f64 / n as f64;
+                    Vec3::new((r * t.cos()) as f32, h as f32, (r * t.sin()) as f32)
+                })
+                .collect();
+            let ff = form_factor(Vec3::ZERO, Vec3::Y, &verts) as f64;
+            let inner = disc(r * (std::f64::consts::PI / n as f64).cos());
+            assert!(inner - 1e-5 < ff && ff < disc(r) + 1e-5, "{n} corners: {ff} not within [{inner}, {}]", disc(r));
+        }
     }
 
     #[test]
