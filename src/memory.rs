@@ -6,7 +6,7 @@
 //! evaluation faulted the same pages back in, zeroed: on oa_dm1's vertex target at 402k
 //! rows the kernel's page handling took about a seventh of the run and an evaluation
 //! cost 0.167 us per row against 0.08 at 121k (`benches/scaling.py`, 2-core machine). With
-//! the memory kept, 0.069 at 402k: the cost is linear in the rows again.
+//! the memory kept, 0.066 at 402k (README, "Speed"): the cost is linear in the rows again.
 
 /// Keeps freed memory in the process: blocks up to 32 MB (glibc's largest mmap threshold
 /// on 64-bit) come from the heap, and the heap is never trimmed during the run. A no-op

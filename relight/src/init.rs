@@ -106,11 +106,6 @@ pub struct AutoStats {
     pub history: Vec<crate::fit::IterRecord>,
 }
 
-/// Greedy placement on a subsample of the rows. `model` is the model the lights join:
-/// its terms (sun, sky, surfaces, ambient, ...) and the lights kept from the input
-/// (`locked` says which are the user's locked ones); new lights are placed for what it
-/// leaves unexplained. `start_time` is the clock of the run, for the iteration records.
-#[allow(clippy::too_many_arguments)]
 /// Rows whose best-scored candidate a round refits (best score first) before it ends
 /// without a light.
 const TRIES_PER_ROUND: usize = 3;
@@ -118,6 +113,11 @@ const TRIES_PER_ROUND: usize = 3;
 /// Rounds in a row that add no light before the placement stops (each looks at other rows).
 const FAILED_ROUNDS: usize = 3;
 
+/// Greedy placement on a subsample of the rows. `model` is the model the lights join:
+/// its terms (sun, sky, surfaces, ambient, ...) and the lights kept from the input
+/// (`locked` says which are the user's locked ones); new lights are placed for what it
+/// leaves unexplained. `start_time` is the clock of the run, for the iteration records.
+#[allow(clippy::too_many_arguments)]
 pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Vec3, model: &Model, locked: &[bool], max_lights: usize, min_gain: f64, sample: usize, seed: u64, deadline: Option<std::time::Instant>, start_time: std::time::Instant) -> (Model, AutoStats) {
     let (sub, take) = rows.subsample(sample, seed);
     let sub_bases = bases.subset(&take);
