@@ -288,3 +288,93 @@ def test_bounced_light_carries_the_fits_bounce_scale(bpy, workdir):
     print(f"\nfloor lit by one bounce: {one:.5f} at scale 1, {two:.5f} at scale 2")
     assert one > 1e-3, "the floor is lit by the bounce"
     assert two / one == pytest.approx(2.0, rel=0.05)
+
+
+def _emitter_scene(bpy, blended: bool):
+    """One mesh with two materials: a floor (albedo 0.5, lit) at z = 0 over x, y in
+    [-1, 1], and a surface light (base image 0.2, emission 10 W/m^2/sr as relight writes
+    it) facing down at z = 1 over x in [1.2, 2.2], past the floor's edge: it lights the floor, and a camera
+    straight above the origin (orthographic, 1 m wide) sees only the floor."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    floor = bpy.data.materials.new("floor")
+    floor["q3_lighting"] = "lightmap"
+    bsdf = floor.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    lamp = bpy.data.materials.new("textures/sfx/lamp")
+    lamp["q3_lighting"] = "lightmap"
+    nodes, links = lamp.node_tree.nodes, lamp.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    image = bpy.data.images.new("lamp", 4, 4, float_buffer=True)
+    image.colorspace_settings.name = "Linear Rec.709"
+    image.pixels = [0.2, 0.2, 0.2, 1.0] * 16
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 10.0
+    if blended:
+        lamp.surface_render_method = "BLENDED"
+    mesh = bpy.data.meshes.new("world")
+    mesh.from_pydata([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0),
+                      (1.2, -0.5, 1), (1.2, 0.5, 1), (2.2, 0.5, 1), (2.2, -0.5, 1)],
+                     [], [(0, 1, 2, 3), (4, 5, 6, 7)])
+    mesh.materials.append(floor)
+    mesh.materials.append(lamp)
+    mesh.polygons[1].material_index = 1
+    obj = bpy.data.objects.new("world", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj, lamp, image
+
+
+def _mean_seen_from(bpy, path: Path, x: float, z: float, samples: int) -> float:
+    """Mean linear RGB of an 8x8 Cycles render (EXR) by an orthographic camera 1 m wide at
+    (x, 0, z) looking down."""
+    for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
+        bpy.data.objects.remove(o)
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    cam.data.type = "ORTHO"
+    cam.data.ortho_scale = 0.5
+    cam.location = (x, 0, z)
+    bpy.context.scene.collection.objects.link(cam)
+    bpy.context.scene.camera = cam
+    render.setup_cycles(8, 8, samples, 0)
+    bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
+    bpy.context.scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path))
+    return float(np.array(img.pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+
+
+@pytest.mark.parametrize("blended", [False, True])
+def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, workdir, blended):
+    """relight writes a surface light as an emission of its fitted radiance (10 here; a
+    flame's is thousands of times its texture), which Cycles showed the camera as a
+    blown-out patch. After relit_materials the camera sees the light's texture (0.2, as
+    the game draws it; over a blended material, added to what lies behind it: the black
+    world here), and the floor it lights receives the same light as before."""
+    obj, lamp, image = _emitter_scene(bpy, blended)
+    before = _mean_seen_from(bpy, workdir / f"floor_before_{blended}.exr", 0.0, 2.0, 256)
+    seen_before = _mean_seen_from(bpy, workdir / f"lamp_before_{blended}.exr", 1.7, 2.0, 4)
+    assert lightmap_preview.surface_light_materials() == {lamp}
+    lightmap_preview.relit_materials()
+    assert lightmap_preview.emitters_as_seen() == 0, "applied once"
+    part = next(o for o in bpy.data.objects if o.get("q3_emitter_look") and not o.get("q3_emitter_copy"))
+    copy = next(o for o in bpy.data.objects if o.get("q3_emitter_copy"))
+    assert len(obj.data.polygons) == 1 and [s.material for s in obj.material_slots if s.material][0].name == "floor"
+    assert obj.visible_camera, "the floor stays in view"
+    assert not part.visible_camera and part.visible_diffuse and part.visible_shadow
+    assert copy.visible_camera and not (copy.visible_diffuse or copy.visible_shadow) and copy.data == part.data
+    emit = next(n for n in copy.material_slots[1].material.node_tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    assert emit.inputs["Color"].links[0].from_node.image == image
+    look_nodes = copy.material_slots[1].material.node_tree.nodes
+    assert any(n.bl_idname == "ShaderNodeBsdfTransparent" for n in look_nodes) == blended, "added over what lies behind"
+    after = _mean_seen_from(bpy, workdir / f"floor_after_{blended}.exr", 0.0, 2.0, 256)
+    seen = _mean_seen_from(bpy, workdir / f"lamp_after_{blended}.exr", 1.7, 2.0, 4)
+    print(f"\nblended {blended}: the light seen {seen_before:.3f} before, {seen:.4f} after (its texture 0.2); "
+          f"the floor {before:.4f} before, {after:.4f} after")
+    assert seen_before > 5.0
+    assert seen == pytest.approx(0.2, rel=0.02)
+    assert before > 0.05
+    assert after == pytest.approx(before, rel=0.03)

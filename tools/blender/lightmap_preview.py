@@ -21,8 +21,9 @@ the lightmap's byte encoding) multiplied into the base color by a Mix node.
   emission `albedo x E_a / pi`: the light q3map2 adds everywhere, which no lamp and no
   world colour can reach inside a closed map; and what casts no shadow in q3map2 (the
   sky, glass and other shaders that say so) casts none in Cycles, and the camera sees
-  the sky's texture, not the sky light it emits; light bounced off a surface carries the
-  fit's bounce scale (the albedo every ray but the camera's sees).
+  the sky's texture, not the sky light it emits, and a surface light's texture, not the
+  radiance relight fitted for it; light bounced off a surface carries the fit's bounce
+  scale (the albedo every ray but the camera's sees).
 
 Usage inside Blender or with `import bpy`:
 
@@ -263,6 +264,7 @@ def add_ambient(ambient_w_m2, materials=None) -> int:
         mix.inputs[7].default_value = (*colour, 1.0)
         links.new(mix.outputs[2], bsdf.inputs["Emission Color"])
         bsdf.inputs["Emission Strength"].default_value = 1.0
+        mat["q3_ambient_emission"] = True  # not a surface light (surface_light_materials)
         changed += 1
     return changed
 
@@ -331,6 +333,63 @@ def _base_image(bsdf):
     return None
 
 
+def _as_seen_material(mat, name: str, additive: bool = False):
+    """A material that shows the camera `mat`'s base colour (its image, through the same UV
+    map, or its flat colour) as emission at strength 1, the way the game draws a surface at
+    full brightness, and lights nothing. With `additive`, the emission is added over what
+    lies behind (a Transparent BSDF plus the emission): the game's additive blend, which
+    shows an effect texture's black as no change (flames)."""
+    m = bpy.data.materials.new(name)
+    nodes, links = m.node_tree.nodes, m.node_tree.links
+    nodes.clear()
+    emit = nodes.new("ShaderNodeEmission")
+    out = nodes.new("ShaderNodeOutputMaterial")
+    shader = emit.outputs["Emission"]
+    if additive:
+        add = nodes.new("ShaderNodeAddShader")
+        links.new(nodes.new("ShaderNodeBsdfTransparent").outputs["BSDF"], add.inputs[0])
+        links.new(shader, add.inputs[1])
+        shader = add.outputs["Shader"]
+        m.surface_render_method = "BLENDED"
+    links.new(shader, out.inputs["Surface"])
+    bsdf = _principled(mat) if mat is not None and mat.node_tree is not None else None
+    src = _base_image(bsdf) if bsdf is not None else None
+    if src is not None:
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = src.image
+        uv = src.inputs["Vector"].links[0].from_node if src.inputs["Vector"].is_linked else None
+        if uv is not None and uv.bl_idname == "ShaderNodeUVMap":
+            uvn = nodes.new("ShaderNodeUVMap")
+            uvn.uv_map = uv.uv_map
+            links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+        links.new(tex.outputs["Color"], emit.inputs["Color"])
+    elif bsdf is not None and not bsdf.inputs["Base Color"].is_linked:
+        emit.inputs["Color"].default_value = bsdf.inputs["Base Color"].default_value
+    else:
+        # A base colour from something other than an image: black rather than the
+        # socket's unused default (white).
+        emit.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    m.cycles.emission_sampling = "NONE"  # lights nothing
+    return m
+
+
+def _camera_copy(o, look, flag: str):
+    """A copy of `o` sharing its mesh, seen only by the camera, each material slot showing
+    `look(material)`; `o` itself is hidden from camera rays and lights and shadows as
+    before. (A parented copy keeps the parent.) Returns the copy."""
+    copy = o.copy()
+    copy[flag] = True
+    for coll in o.users_collection:
+        coll.objects.link(copy)
+    for slot_o, slot_c in zip(o.material_slots, copy.material_slots):
+        slot_c.link = "OBJECT"
+        slot_c.material = look(slot_o.material)
+    copy.visible_diffuse = copy.visible_glossy = copy.visible_transmission = False
+    copy.visible_volume_scatter = copy.visible_shadow = False
+    o.visible_camera = False
+    return copy
+
+
 def sky_as_seen() -> int:
     """The camera sees the sky's texture (as the game draws it, at full brightness), not
     the sky light relight wrote as its emission, which still lights the scene: each object
@@ -342,50 +401,93 @@ def sky_as_seen() -> int:
     looks = {}
 
     def look_of(mat):
-        if mat in looks:
-            return looks[mat]
-        m = bpy.data.materials.new((mat.name if mat else "sky") + " (as seen)")
-        nodes = m.node_tree.nodes
-        nodes.clear()
-        emit = nodes.new("ShaderNodeEmission")
-        out = nodes.new("ShaderNodeOutputMaterial")
-        m.node_tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
-        bsdf = _principled(mat) if mat is not None and mat.node_tree is not None else None
-        src = _base_image(bsdf) if bsdf is not None else None
-        if src is not None:
-            tex = nodes.new("ShaderNodeTexImage")
-            tex.image = src.image
-            uv = src.inputs["Vector"].links[0].from_node if src.inputs["Vector"].is_linked else None
-            if uv is not None and uv.bl_idname == "ShaderNodeUVMap":
-                uvn = nodes.new("ShaderNodeUVMap")
-                uvn.uv_map = uv.uv_map
-                m.node_tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-            m.node_tree.links.new(tex.outputs["Color"], emit.inputs["Color"])
-        elif bsdf is not None and not bsdf.inputs["Base Color"].is_linked:
-            emit.inputs["Color"].default_value = bsdf.inputs["Base Color"].default_value
-        else:
-            # A base colour from something other than an image: black rather than the
-            # socket's unused default (white).
-            emit.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
-        m.cycles.emission_sampling = "NONE"  # lights nothing
-        looks[mat] = m
-        return m
+        if mat not in looks:
+            looks[mat] = _as_seen_material(mat, (mat.name if mat else "sky") + " (as seen)")
+        return looks[mat]
 
     changed = 0
     for o in [o for o in bpy.data.objects if o.type == "MESH" and is_sky_object(o) and not o.get("q3_sky_look")]:
-        # (A parented copy keeps the parent, so it stays under the sky node.)
-        copy = o.copy()  # shares the mesh
+        copy = _camera_copy(o, look_of, "q3_sky_copy")
         copy["q3_sky_look"] = True
-        copy["q3_sky_copy"] = True
-        for coll in o.users_collection:
-            coll.objects.link(copy)
-        for slot_o, slot_c in zip(o.material_slots, copy.material_slots):
-            slot_c.link = "OBJECT"
-            slot_c.material = look_of(slot_o.material)
-        copy.visible_diffuse = copy.visible_glossy = copy.visible_transmission = False
-        copy.visible_volume_scatter = copy.visible_shadow = False
-        o.visible_camera = False
         o["q3_sky_look"] = True
+        changed += 1
+    return changed
+
+
+def surface_light_materials() -> set:
+    """Materials the file makes emit (relight's surface lights: the importer sets the
+    Principled BSDF's emission from `emissiveFactor` and `KHR_materials_emissive_strength`),
+    other than the sky's. Read it before `add_ambient` gives lit materials an emission."""
+    sky = sky_materials()
+    found = set()
+    for mat, bsdf, _out, _nodes, _links in _rewirable():
+        colour = bsdf.inputs["Emission Color"]
+        if mat in sky or mat.get("q3_ambient_emission") or bsdf.inputs["Emission Strength"].default_value <= 0:
+            continue
+        if colour.is_linked or any(c > 0 for c in colour.default_value[:3]):
+            found.add(mat)
+    return found
+
+
+def _split_off_faces(o, slots: set):
+    """Moves the faces of `o` whose material slot index is in `slots` into a new object
+    (same transform, parent and collections, its own mesh with the same materials) and
+    returns it; `o` keeps the rest. None where no face is in `slots`; `o` itself where
+    every face is (nothing to split)."""
+    import bmesh
+    mats = [f.material_index for f in o.data.polygons]
+    inside = sum(1 for i in mats if i in slots)
+    if inside == 0:
+        return None
+    if inside == len(mats):
+        return o
+    if o.data.users > 1:
+        o.data = o.data.copy()
+    part = o.copy()
+    part.data = o.data.copy()
+    for coll in o.users_collection:
+        coll.objects.link(part)
+    for mesh, keep_inside in ((part.data, True), (o.data, False)):
+        bm = bmesh.new()
+        bm.from_mesh(mesh)
+        gone = [f for f in bm.faces if (f.material_index in slots) != keep_inside]
+        bmesh.ops.delete(bm, geom=gone, context="FACES")
+        bm.to_mesh(mesh)
+        bm.free()
+        mesh.update()
+    return part
+
+
+def emitters_as_seen(emitters=None) -> int:
+    """The camera sees a surface light's texture, as the game draws it (at full brightness;
+    added over what lies behind where the material blends, as the game's additive effect
+    shaders do), not the radiance relight fitted for it (thousands of times the texture
+    on a flame), which still lights the scene. The faces of each surface-light material
+    (default: `surface_light_materials()`) move into an object of their own, hidden from
+    camera rays, and a camera-only copy shows the look, as `sky_as_seen` does for the sky.
+    Returns how many objects got a copy."""
+    emitters = surface_light_materials() if emitters is None else set(emitters)
+    if not emitters:
+        return 0
+    looks = {}
+
+    def look_of(mat):
+        if mat not in emitters:
+            return mat
+        if mat not in looks:
+            additive = getattr(mat, "surface_render_method", "") == "BLENDED"
+            looks[mat] = _as_seen_material(mat, mat.name + " (as seen)", additive)
+        return looks[mat]
+
+    changed = 0
+    for o in [o for o in bpy.data.objects if o.type == "MESH" and not is_sky_object(o) and not o.get("q3_emitter_look")]:
+        slots = {i for i, s in enumerate(o.material_slots) if s.material in emitters}
+        part = _split_off_faces(o, slots) if slots else None
+        if part is None:
+            continue
+        part["q3_emitter_look"] = True
+        copy = _camera_copy(part, look_of, "q3_emitter_copy")
+        copy["q3_emitter_look"] = True
         changed += 1
     return changed
 
@@ -436,9 +538,12 @@ def relit_materials(materials=None, ambient: bool = True) -> int:
     """Vertex-lit materials: take the baked vertex colours out of the albedo (connect the
     base colour image straight to the BSDF); with `ambient`, relight's ambient term as
     emission (see `add_ambient`); what casts no shadow in q3map2 casts none
-    (`shadows_as_q3map2`); the camera sees the sky's texture (`sky_as_seen`); bounced light
-    carries the fit's bounce scale (`scale_bounces`). Returns how many vertex-lit
-    materials changed."""
+    (`shadows_as_q3map2`); the camera sees the sky's texture (`sky_as_seen`) and each
+    surface light's (`emitters_as_seen`); bounced light carries the fit's bounce scale
+    (`scale_bounces`). Returns how many vertex-lit materials changed."""
+    emitters = surface_light_materials()  # before the ambient makes lit materials emit
+    if materials is not None:
+        emitters &= set(materials)
     changed = _unbake_vertex_colours(materials)
     amb = scene_ambient_irradiance() if ambient else None
     if amb is not None:
@@ -448,6 +553,7 @@ def relit_materials(materials=None, ambient: bool = True) -> int:
         scale_bounces(scale, materials)
     shadows_as_q3map2()
     sky_as_seen()
+    emitters_as_seen(emitters)
     return changed
 
 
@@ -457,6 +563,8 @@ def _unbake_vertex_colours(materials=None) -> int:
         bsdf = _principled(mat) if mat.node_tree is not None else None
         if bsdf is None or lighting_kind(mat) != "vertex" or not bsdf.inputs["Base Color"].is_linked:
             continue
+        if mat.get("q3_bounce_scaled"):
+            continue  # done before: the Mix is now scale_bounces' pick
         src = bsdf.inputs["Base Color"].links[0].from_node
         if src.bl_idname != "ShaderNodeMix":
             continue
