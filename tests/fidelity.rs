@@ -311,6 +311,7 @@ fn truth_set_recovery_by_the_default_relight() {
         let near = |p: [f64; 3]| found.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt() <= reach);
         let hits = sources[..10].iter().filter(|(_, p)| near(*p)).count();
         let err = r["rel_error_final"].as_f64().unwrap();
+        common::assert_terms_within_allowance(map, &r);
         eprintln!("{map:10} {err:.4} (bound {bound}), {} lights, {hits}/10 of the strongest sources found (at least {min_found})", found.len());
         if !(err <= bound) || hits < min_found {
             failures.push(format!("{map}: error {err:.4} (bound {bound}), {hits}/10 found (at least {min_found})"));

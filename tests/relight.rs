@@ -252,6 +252,7 @@ fn the_default_fit_holds_across_placement_subsamples() {
         }
         let phase_rays: u64 = phases.iter().map(|p| p["rays"].as_u64().unwrap()).sum();
         assert!(phase_rays <= r["rays_traced"].as_u64().unwrap(), "--seed {seed}: the phases re-traced {phase_rays} rays of {}", r["rays_traced"]);
+        common::assert_terms_within_allowance(&format!("oa_dm1 --seed {seed}"), &r);
         errors.push((seed, r["rel_error_final"].as_f64().unwrap(), r["lights"].as_array().unwrap().len()));
     }
     for &(seed, e, n) in &errors {

@@ -101,3 +101,20 @@ pub fn set_lights(json: &mut serde_json::Value, lights: Vec<(serde_json::Value, 
         json["extensionsUsed"] = Value::Array(used.into_iter().chain([Value::from("KHR_lights_punctual")]).collect());
     }
 }
+
+/// The optional terms' decisions in a relight report (`terms`, in the order decided):
+/// a term left out with `auto` never takes the error more than `TERM_GAIN` above the
+/// lowest error any decision reached (each small loss counts against one allowance).
+pub fn assert_terms_within_allowance(name: &str, report: &serde_json::Value) {
+    let gain = q3gltf_relight::pipeline::TERM_GAIN;
+    let mut lowest = f64::INFINITY;
+    for t in report["terms"].as_array().expect("the report lists the terms") {
+        let with = t["rel_error_with"].as_f64().unwrap_or(f64::INFINITY);
+        let without = t["rel_error_without"].as_f64().unwrap_or(f64::INFINITY);
+        lowest = lowest.min(with).min(without);
+        let note = t["note"].as_str().unwrap_or_default();
+        if note.starts_with("not used") {
+            assert!(without <= lowest + gain + 1e-12, "{name}: leaving out {} took the error to {without:.4}, more than {gain} above the lowest reached, {lowest:.4}: {}", t["term"], report["terms"]);
+        }
+    }
+}
