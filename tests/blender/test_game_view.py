@@ -378,3 +378,50 @@ def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, w
     assert seen == pytest.approx(0.2, rel=0.02)
     assert before > 0.05
     assert after == pytest.approx(before, rel=0.03)
+
+
+@pytest.mark.parametrize("emitter", ["sky", "surface"])
+def test_an_emitter_lights_the_floor_through_what_casts_no_shadow(bpy, workdir, emitter):
+    """An emitting plane (the sky, or a surface light) 2 m above a floor, with a glass plane
+    (extras `q3_casts_shadow` false) between them: after relit_materials the floor
+    receives the same light as without the glass, as in relight's model, which leaves such
+    surfaces out of every ray. Cycles does not flag the shadow rays of a mesh light's
+    direct light as "Is Shadow Ray" through such a surface: with the Light Path mix the
+    old rule used, oacmpdm4's platform got 0.17 of its sky light behind a star shell."""
+    def floor_radiance(with_glass: bool) -> float:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        _wall(bpy, "floor", 0.5, size=4.0)
+        lamp = _wall(bpy, "lamp", 0.0, size=4.0)
+        lamp.location = (0.0, 0.0, 2.0)
+        lamp.rotation_euler = (math.pi, 0.0, 0.0)  # facing down
+        bsdf = lamp.material_slots[0].material.node_tree.nodes["Principled BSDF"]
+        bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        bsdf.inputs["Emission Strength"].default_value = 3.0
+        if emitter == "sky":
+            sky = bpy.data.objects.new("sky", None)
+            bpy.context.scene.collection.objects.link(sky)
+            lamp.parent = sky
+            lamp.material_slots[0].material["q3_lighting"] = "none"
+        if with_glass:
+            glass = _wall(bpy, "glass", 0.8, size=4.0)
+            glass.location = (0.0, 0.0, 1.0)
+            glass.material_slots[0].material["q3_casts_shadow"] = False
+        lightmap_preview.relit_materials()
+        cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+        cam.data.type = "ORTHO"
+        cam.data.ortho_scale = 0.5
+        cam.data.clip_start = 0.01
+        cam.location = (0, 0, 0.5)  # under the glass, looking down at the floor
+        bpy.context.scene.collection.objects.link(cam)
+        bpy.context.scene.camera = cam
+        render.setup_cycles(8, 8, 64, 0)
+        path = workdir / f"through_glass_{emitter}_{with_glass}.exr"
+        bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
+        bpy.context.scene.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True)
+        return float(np.array(bpy.data.images.load(str(path)).pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+
+    open_, through = floor_radiance(False), floor_radiance(True)
+    print(f"\n{emitter}: the floor {open_:.4f} without the glass, {through:.4f} through it")
+    assert open_ > 0.1
+    assert through == pytest.approx(open_, rel=0.03)

@@ -284,11 +284,18 @@ def shadows_as_q3map2() -> int:
     is used once it is used under convert's "sky" node, as relight reads it) and materials
     whose shader says so (extras `q3_casts_shadow` false: glass, some sky and effect
     shaders). As plain geometry a glass roof or the sky brushes would put the map in the
-    sun's shadow. Each such material becomes transparent to shadow rays (Light Path "Is
-    Shadow Ray"); relight's shadow rays skip the same surfaces. Returns how many
-    materials changed."""
-    mats = sky_materials()
-    mats |= {m for m in bpy.data.materials if m.get("q3_casts_shadow") is False or m.get("q3_casts_shadow") == 0}
+    sun's shadow. relight leaves these surfaces out of every ray it traces (shadow rays
+    and bounces alike), so in Cycles each such material lets every ray but the camera's
+    through (Light Path "Is Camera Ray"); one that emits (the sky, a surface light) becomes
+    its emission plus a Transparent BSDF, which lights and blocks nothing else, for every
+    ray (the camera sees it through the copies of `sky_as_seen` and `emitters_as_seen`;
+    a camera flag would leak into its direct light: Cycles evaluates a mesh light with
+    the shading point's flags). ("Is Shadow Ray" is not enough: Cycles does not raise it
+    for the shadow rays of a mesh light's direct light, and oacmpdm4's platform got 0.17 of
+    its sky light behind a star shell.) Returns how many materials changed."""
+    sky = sky_materials()
+    mats = sky | {m for m in bpy.data.materials if m.get("q3_casts_shadow") is False or m.get("q3_casts_shadow") == 0}
+    emitting = sky | surface_light_materials()
     changed = 0
     for mat in mats:
         if mat.get("q3_shadow_rule_applied"):
@@ -298,13 +305,27 @@ def shadows_as_q3map2() -> int:
             continue
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
         shader = out.inputs["Surface"].links[0].from_socket
-        path = nodes.new("ShaderNodeLightPath")
         clear = nodes.new("ShaderNodeBsdfTransparent")
-        mix = nodes.new("ShaderNodeMixShader")
-        links.new(path.outputs["Is Shadow Ray"], mix.inputs["Fac"])
-        links.new(shader, mix.inputs[1])
-        links.new(clear.outputs["BSDF"], mix.inputs[2])
-        links.new(mix.outputs["Shader"], out.inputs["Surface"])
+        bsdf = _principled(mat)
+        if mat in emitting and bsdf is not None:
+            emit = nodes.new("ShaderNodeEmission")
+            colour = bsdf.inputs["Emission Color"]
+            if colour.is_linked:
+                links.new(colour.links[0].from_socket, emit.inputs["Color"])
+            else:
+                emit.inputs["Color"].default_value = colour.default_value
+            emit.inputs["Strength"].default_value = bsdf.inputs["Emission Strength"].default_value
+            add = nodes.new("ShaderNodeAddShader")
+            links.new(clear.outputs["BSDF"], add.inputs[0])
+            links.new(emit.outputs["Emission"], add.inputs[1])
+            links.new(add.outputs["Shader"], out.inputs["Surface"])
+        else:
+            path = nodes.new("ShaderNodeLightPath")
+            mix = nodes.new("ShaderNodeMixShader")
+            links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+            links.new(clear.outputs["BSDF"], mix.inputs[1])
+            links.new(shader, mix.inputs[2])
+            links.new(mix.outputs["Shader"], out.inputs["Surface"])
         mat["q3_shadow_rule_applied"] = True
         changed += 1
     return changed
