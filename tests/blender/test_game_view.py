@@ -136,7 +136,9 @@ def test_ambient_becomes_emission_in_cycles_units(bpy, dm1, workdir):
         bsdf = lightmap_preview._principled(m)
         if bsdf is None:
             continue
-        assert bsdf.inputs["Emission Strength"].default_value == 1.0, m.name
+        strength = bsdf.inputs["Emission Strength"]
+        assert strength.default_value == 1.0, m.name
+        assert strength.links[0].from_socket.name == "Is Camera Ray" and m.cycles.emission_sampling == "NONE", m.name
         mix = bsdf.inputs["Emission Color"].links[0].from_node
         assert list(mix.inputs[7].default_value)[:3] == pytest.approx([v / math.pi for v in (0.6, 0.3, 0.15)], rel=1e-5)
 
@@ -425,3 +427,21 @@ def test_an_emitter_lights_the_floor_through_what_casts_no_shadow(bpy, workdir, 
     print(f"\n{emitter}: the floor {open_:.4f} without the glass, {through:.4f} through it")
     assert open_ > 0.1
     assert through == pytest.approx(open_, rel=0.03)
+
+
+def test_the_ambient_lights_no_other_surface(bpy, workdir):
+    """relight's ambient is irradiance every lit surface receives, in the model and in the
+    render: its emission `albedo x E_a / pi` is what the camera sees of it, not a light
+    that reaches other surfaces. A floor between two white walls, all under the ambient,
+    reads its own `albedo x E_a / pi` (the walls' emission had lit it too)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    _wall(bpy, "floor", 0.5, size=4.0)
+    for x in (0.6, -0.6):
+        wall = _wall(bpy, f"wall {x}", 1.0, size=4.0)
+        wall.location = (x, 0.0, 1.0)
+        wall.rotation_euler = (0.0, math.pi / 2, 0.0)
+    bpy.context.scene["q3_relight"] = {"ambient": [0.9, 0.9, 0.9]}
+    lightmap_preview.relit_materials()
+    pixel = _mean_seen_from_above(bpy, workdir / "ambient_between_walls.exr")
+    print(f"\nthe floor between the walls: {pixel:.4f}; albedo x E_a / pi = {0.5 * 0.9 / math.pi:.4f}")
+    assert pixel == pytest.approx(0.5 * 0.9 / math.pi, rel=1e-2)

@@ -239,8 +239,10 @@ def scene_ambient_irradiance():
 
 def add_ambient(ambient_w_m2, materials=None) -> int:
     """Each lit, non-emissive material also emits `albedo x E_a / pi` (radiance of a
-    Lambertian surface under irradiance E_a): relight's ambient term. Returns how many
-    changed."""
+    Lambertian surface under irradiance E_a): relight's ambient term, which every lit
+    surface receives and none passes on. The emission is seen by camera rays only (as a
+    light it lit its neighbours too: a floor between two white walls read 1.75 times its
+    ambient radiance). Returns how many changed."""
     import math
     colour = [v / math.pi for v in ambient_w_m2]
     changed = 0
@@ -248,6 +250,8 @@ def add_ambient(ambient_w_m2, materials=None) -> int:
         bsdf = _principled(mat) if mat.node_tree is not None else None
         if bsdf is None or lighting_kind(mat) == "none":
             continue
+        if mat.get("q3_ambient_emission"):
+            continue  # done before
         if bsdf.inputs["Emission Strength"].default_value > 0 and (
                 bsdf.inputs["Emission Color"].is_linked or any(bsdf.inputs["Emission Color"].default_value[:3])):
             continue  # a surface light: its emission is its own
@@ -264,6 +268,11 @@ def add_ambient(ambient_w_m2, materials=None) -> int:
         mix.inputs[7].default_value = (*colour, 1.0)
         links.new(mix.outputs[2], bsdf.inputs["Emission Color"])
         bsdf.inputs["Emission Strength"].default_value = 1.0
+        # What the camera sees of the ambient, not a light: no other ray sees the emission,
+        # and no light sampling picks it (which would evaluate it with the flags of the
+        # point it lights: a camera-lit point would see it).
+        links.new(nodes.new("ShaderNodeLightPath").outputs["Is Camera Ray"], bsdf.inputs["Emission Strength"])
+        mat.cycles.emission_sampling = "NONE"
         mat["q3_ambient_emission"] = True  # not a surface light (surface_light_materials)
         changed += 1
     return changed
