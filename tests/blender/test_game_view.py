@@ -80,6 +80,17 @@ def test_the_engine_preview_is_the_floor(views):
     assert np.all((eng / game > 0.6) & (eng / game < 1.2)), eng / game
 
 
+def test_the_relit_scene_through_the_game_display_is_near_the_floor(views):
+    """The relit scene (here the small fit of the `dm1_relit` fixture) rendered in Cycles
+    and shown through `game_display` comes within 1.5 times the floor's error against the
+    game's frame (the rendering issue's goal; `make render` measures it on three maps with
+    the default fit). (Measured 1.03 x; the plain render of this small, dim fit 0.90 x.)"""
+    row = compare.compare_dir(views)[0]
+    print(f"\nagainst the game's frame: floor {row['engine']:.3f}, relit-display {row['relit-display']:.3f} "
+          f"({row['relit-display_over_floor']:.2f} x), relit {row['relit']:.3f} ({row['relit_over_floor']:.2f} x)")
+    assert row["relit-display_over_floor"] <= 1.5
+
+
 def test_nothing_the_game_lights_is_black_in_the_relit_render(views, dm1_relit):
     """The black triangles of the first relit renders were surfaces in the shadow of every
     fitted light, lit in the fit only by its ambient term, which the render left out."""
