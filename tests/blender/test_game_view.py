@@ -363,7 +363,7 @@ def _mean_seen_from(bpy, path: Path, x: float, z: float, samples: int) -> float:
 @pytest.mark.parametrize("blended", [False, True])
 def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, workdir, blended):
     """relight writes a surface light as an emission of its fitted radiance (10 here; a
-    flame's is thousands of times its texture), which Cycles showed the camera as a
+    flame's, oa_dm1's sfx/flame2, 36 where its texture is below 1), which Cycles showed the camera as a
     blown-out patch. After relit_materials the camera sees the light's texture (0.2, as
     the game draws it; over a blended material, added to what lies behind it: the black
     world here), and the floor it lights receives the same light as before."""

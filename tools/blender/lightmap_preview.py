@@ -491,7 +491,7 @@ def _split_off_faces(o, slots: set):
 def emitters_as_seen(emitters=None) -> int:
     """The camera sees a surface light's texture, as the game draws it (at full brightness;
     added over what lies behind where the material blends, as the game's additive effect
-    shaders do), not the radiance relight fitted for it (thousands of times the texture
+    shaders do), not the radiance relight fitted for it (tens of times the texture
     on a flame), which still lights the scene. The faces of each surface-light material
     (default: `surface_light_materials()`) move into an object of their own, hidden from
     camera rays, and a camera-only copy shows the look, as `sky_as_seen` does for the sky.
