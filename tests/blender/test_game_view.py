@@ -116,21 +116,36 @@ def _wall(bpy, name: str, albedo: float, size: float = 2.0):
     return plane
 
 
-def _mean_seen_from_above(bpy, path: Path, ortho_scale: float = 1.0) -> float:
-    """Mean linear RGB of an 8x8 Cycles render (EXR) by an orthographic camera 2 m above
-    the origin looking down."""
+def _mean_seen_from_above(bpy, path: Path, ortho_scale: float = 1.0, x: float = 0.0, z: float = 2.0,
+                          samples: int = 4) -> float:
+    """Mean linear RGB of an 8x8 Cycles render (EXR) by an orthographic camera
+    `ortho_scale` m wide at (x, 0, z) looking down (any other camera removed first)."""
+    for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
+        bpy.data.objects.remove(o)
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     cam.data.type = "ORTHO"
     cam.data.ortho_scale = ortho_scale
-    cam.location = (0, 0, 2)
+    cam.data.clip_start = 0.01
+    cam.location = (x, 0, z)
     bpy.context.scene.collection.objects.link(cam)
     bpy.context.scene.camera = cam
-    render.setup_cycles(8, 8, 4, 0)
+    render.setup_cycles(8, 8, samples, 0)
     bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
     bpy.context.scene.render.filepath = str(path)
     bpy.ops.render.render(write_still=True)
     img = bpy.data.images.load(str(path))
     return float(np.array(img.pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+
+
+def _flat_image(bpy, nodes, name: str, value: float):
+    """A 4x4 linear image of grey `value` in a new Image Texture node of `nodes`: (node,
+    image)."""
+    image = bpy.data.images.new(name, 4, 4, float_buffer=True)
+    image.colorspace_settings.name = "Linear Rec.709"
+    image.pixels = [value, value, value, 1.0] * 16
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    return tex, image
 
 
 def test_ambient_becomes_emission_in_cycles_units(bpy, dm1, workdir):
@@ -207,8 +222,6 @@ def test_the_sky_and_glass_cast_no_shadow(bpy, workdir):
     bpy.context.scene.collection.objects.link(sun)
 
     def ground_radiance(name):
-        for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
-            bpy.data.objects.remove(o)
         return _mean_seen_from_above(bpy, workdir / f"{name}.exr", ortho_scale=0.5)
 
     shadowed = ground_radiance("sky_shadow")
@@ -237,11 +250,7 @@ def test_the_camera_sees_the_skys_image_through_a_vertex_colour_mix(bpy, workdir
     mat["q3_lighting"] = "none"
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = nodes["Principled BSDF"]
-    image = bpy.data.images.new("stars", 4, 4, float_buffer=True)
-    image.colorspace_settings.name = "Linear Rec.709"
-    image.pixels = [0.2, 0.2, 0.2, 1.0] * 16
-    tex = nodes.new("ShaderNodeTexImage")
-    tex.image = image
+    tex, image = _flat_image(bpy, nodes, "stars", 0.2)
     vcol = nodes.new("ShaderNodeVertexColor")
     mix = nodes.new("ShaderNodeMix")
     mix.data_type = "RGBA"
@@ -307,7 +316,7 @@ def _emitter_scene(bpy, blended: bool):
     """One mesh with two materials: a floor (albedo 0.5, lit) at z = 0 over x, y in
     [-1, 1], and a surface light (base image 0.2, emission 10 W/m^2/sr as relight writes
     it) facing down at z = 1 over x in [1.2, 2.2], past the floor's edge: it lights the floor, and a camera
-    straight above the origin (orthographic, 1 m wide) sees only the floor."""
+    straight above the origin (orthographic, 0.5 m wide) sees only the floor."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     floor = bpy.data.materials.new("floor")
     floor["q3_lighting"] = "lightmap"
@@ -318,11 +327,7 @@ def _emitter_scene(bpy, blended: bool):
     lamp["q3_lighting"] = "lightmap"
     nodes, links = lamp.node_tree.nodes, lamp.node_tree.links
     bsdf = nodes["Principled BSDF"]
-    image = bpy.data.images.new("lamp", 4, 4, float_buffer=True)
-    image.colorspace_settings.name = "Linear Rec.709"
-    image.pixels = [0.2, 0.2, 0.2, 1.0] * 16
-    tex = nodes.new("ShaderNodeTexImage")
-    tex.image = image
+    tex, image = _flat_image(bpy, nodes, "lamp", 0.2)
     links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
     bsdf.inputs["Specular IOR Level"].default_value = 0.0
     bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
@@ -341,25 +346,6 @@ def _emitter_scene(bpy, blended: bool):
     return obj, lamp, image
 
 
-def _mean_seen_from(bpy, path: Path, x: float, z: float, samples: int) -> float:
-    """Mean linear RGB of an 8x8 Cycles render (EXR) by an orthographic camera 1 m wide at
-    (x, 0, z) looking down."""
-    for o in [o for o in bpy.data.objects if o.type == "CAMERA"]:
-        bpy.data.objects.remove(o)
-    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-    cam.data.type = "ORTHO"
-    cam.data.ortho_scale = 0.5
-    cam.location = (x, 0, z)
-    bpy.context.scene.collection.objects.link(cam)
-    bpy.context.scene.camera = cam
-    render.setup_cycles(8, 8, samples, 0)
-    bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
-    bpy.context.scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True)
-    img = bpy.data.images.load(str(path))
-    return float(np.array(img.pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
-
-
 @pytest.mark.parametrize("blended", [False, True])
 def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, workdir, blended):
     """relight writes a surface light as an emission of its fitted radiance (10 here; a
@@ -368,8 +354,8 @@ def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, w
     the game draws it; over a blended material, added to what lies behind it: the black
     world here), and the floor it lights receives the same light as before."""
     obj, lamp, image = _emitter_scene(bpy, blended)
-    before = _mean_seen_from(bpy, workdir / f"floor_before_{blended}.exr", 0.0, 2.0, 256)
-    seen_before = _mean_seen_from(bpy, workdir / f"lamp_before_{blended}.exr", 1.7, 2.0, 4)
+    before = _mean_seen_from_above(bpy, workdir / f"floor_before_{blended}.exr", 0.5, samples=256)
+    seen_before = _mean_seen_from_above(bpy, workdir / f"lamp_before_{blended}.exr", 0.5, x=1.7)
     assert lightmap_preview.surface_light_materials() == {lamp}
     lightmap_preview.relit_materials()
     assert lightmap_preview.emitters_as_seen() == 0, "applied once"
@@ -383,8 +369,8 @@ def test_the_camera_sees_a_surface_lights_texture_and_the_floor_its_light(bpy, w
     assert emit.inputs["Color"].links[0].from_node.image == image
     look_nodes = copy.material_slots[1].material.node_tree.nodes
     assert any(n.bl_idname == "ShaderNodeBsdfTransparent" for n in look_nodes) == blended, "added over what lies behind"
-    after = _mean_seen_from(bpy, workdir / f"floor_after_{blended}.exr", 0.0, 2.0, 256)
-    seen = _mean_seen_from(bpy, workdir / f"lamp_after_{blended}.exr", 1.7, 2.0, 4)
+    after = _mean_seen_from_above(bpy, workdir / f"floor_after_{blended}.exr", 0.5, samples=256)
+    seen = _mean_seen_from_above(bpy, workdir / f"lamp_after_{blended}.exr", 0.5, x=1.7)
     print(f"\nblended {blended}: the light seen {seen_before:.3f} before, {seen:.4f} after (its texture 0.2); "
           f"the floor {before:.4f} before, {after:.4f} after")
     assert seen_before > 5.0
@@ -420,19 +406,8 @@ def test_an_emitter_lights_the_floor_through_what_casts_no_shadow(bpy, workdir, 
             glass.location = (0.0, 0.0, 1.0)
             glass.material_slots[0].material["q3_casts_shadow"] = False
         lightmap_preview.relit_materials()
-        cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-        cam.data.type = "ORTHO"
-        cam.data.ortho_scale = 0.5
-        cam.data.clip_start = 0.01
-        cam.location = (0, 0, 0.5)  # under the glass, looking down at the floor
-        bpy.context.scene.collection.objects.link(cam)
-        bpy.context.scene.camera = cam
-        render.setup_cycles(8, 8, 64, 0)
-        path = workdir / f"through_glass_{emitter}_{with_glass}.exr"
-        bpy.context.scene.render.image_settings.file_format = "OPEN_EXR"
-        bpy.context.scene.render.filepath = str(path)
-        bpy.ops.render.render(write_still=True)
-        return float(np.array(bpy.data.images.load(str(path)).pixels[:]).reshape(8, 8, 4)[:, :, :3].mean())
+        # Under the glass, looking down at the floor.
+        return _mean_seen_from_above(bpy, workdir / f"through_glass_{emitter}_{with_glass}.exr", 0.5, z=0.5, samples=64)
 
     open_, through = floor_radiance(False), floor_radiance(True)
     print(f"\n{emitter}: the floor {open_:.4f} without the glass, {through:.4f} through it")

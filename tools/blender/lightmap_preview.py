@@ -313,7 +313,6 @@ def shadows_as_q3map2() -> int:
         if out is None or not out.inputs["Surface"].is_linked:
             continue
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        shader = out.inputs["Surface"].links[0].from_socket
         clear = nodes.new("ShaderNodeBsdfTransparent")
         bsdf = _principled(mat)
         if mat in emitting and bsdf is not None:
@@ -329,6 +328,7 @@ def shadows_as_q3map2() -> int:
             links.new(emit.outputs["Emission"], add.inputs[1])
             links.new(add.outputs["Shader"], out.inputs["Surface"])
         else:
+            shader = out.inputs["Surface"].links[0].from_socket
             path = nodes.new("ShaderNodeLightPath")
             mix = nodes.new("ShaderNodeMixShader")
             links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
