@@ -75,7 +75,7 @@ def relight(binary: str, src: Path, backend: str, extra: list[str], work: Path) 
     r = json.loads(rep.read_text())
     st = dict(r["stage_times_s"])
     out = {"rows": st.get("rows", 0.0), "bases": sum(v for k, v in st.items() if k.startswith("bases")),
-           "start": st.get("start", 0.0), "optimise": st.get("optimise", 0.0), "prune": st.get("prune", 0.0), "total": r["total_time_s"]}
+           "start": st.get("start", 0.0), "optimise": st.get("optimise", 0.0), "prune": sum(t for n, t in st.items() if n == "prune" or n.startswith("prune:")), "total": r["total_time_s"]}
     # The optimise stage is the scheme's phases; of their time, what re-traced the shadows
     # of lights that moved (how often depends on the path, not on the size) and the rest.
     main = [p for p in r["phases"] if p["name"].startswith(f"{r['scheme']} phase")]

@@ -807,12 +807,15 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if tracing.is_none() {
         decide_terms(&mut fit, &terms, opts, &mut term_reports);
     }
+    st.done("prune: terms");
     let mut pruned = 0;
     let mut merged = 0;
     if opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") && tracing.is_none() {
         let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
         pruned = fit.prune(0.002);
+        st.done("prune: lights");
         merged = fit.merge((0.03 * diag).max(2.0 * fit.min_dist), 0.002);
+        st.done("prune: merge");
         // Re-associate input sources by position (pruning and merging removed entries).
         sources = fit.model.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
     }
@@ -834,6 +837,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if sun_rounds == 0 && (pruned + merged > 0 || !term_reports.is_empty()) && !fit.out_of_time() {
         fit.run_phase("polish", polish);
     }
+    st.done("prune: sun, polish");
     // The final state exactly: the fit re-traces a light only once it has moved more than
     // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
     // every light where it is and refit the linear coefficients for it.
@@ -869,7 +873,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if let Some(e) = fit.failure.take() {
         return Err(e);
     }
-    st.done("prune");
+    st.done("prune: final");
 
     let shares = if tracing.is_some() { traced_energy_shares(&rows, &mut fit)? } else { energy_shares(&rows, &fit) };
     let residual_by_material = residual_by_material(&scene, &rows, &bases, &mut fit)?;

@@ -38,20 +38,33 @@ enum Col {
     Gathered,
 }
 
+/// One block of rows' share of the normal equations, over the unknowns the block has.
+struct BlockGram {
+    /// The block's unknowns, ascending.
+    unknowns: Vec<usize>,
+    /// Per channel, `m x m` over `unknowns`.
+    gram: [Vec<f64>; 3],
+    rhs: [Vec<f64>; 3],
+}
+
 /// The work one [`nnls_cd`] solve may take, multiply-adds.
 pub const NNLS_WORK: f64 = 2e9;
 
 /// Projected coordinate descent for `min 1/2 x'Gx - r'x, 0 <= x <= upper` (free entries
-/// only; fixed ones keep their value; `g` symmetric). The gradient `r - Gx` is kept up to
-/// date, so a coordinate that stays put (a light held at zero) costs O(1) per sweep and
-/// one that moves O(n): at a thousand lights, of which most end at zero, a sweep is far
-/// cheaper than the O(n^2) of recomputing each coordinate's sum.
+/// only; fixed ones keep their value; `g` symmetric, dense `n x n`). The gradient `r - Gx`
+/// is kept up to date over each row's nonzero entries only: lights whose reaches do not
+/// overlap have `G_jl = 0`, so at a thousand small source lights a row holds tens of
+/// entries, not a thousand. A coordinate that stays put (a light held at zero) costs O(1)
+/// per sweep. Skipping a zero entry skips an update by `0 * delta`, so the iterates are
+/// those of the dense sweep to the bit.
 pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
-    // At most about NNLS_WORK multiply-adds: a solve at a thousand lights stays within a
-    // second or two (the solution starts from the current values, so repeated solves go
-    // on converging); below about 300 unknowns the sweep limit is the caller's.
-    let sweeps = sweeps.min((NNLS_WORK / (n * n).max(1) as f64) as usize).max(50);
-    let mut grad: Vec<f64> = (0..n).map(|j| r[j] - (0..n).map(|l| g[j * n + l] * x[l]).sum::<f64>()).collect();
+    let rows = SparseRows::of_dense(g, n);
+    // At most about NNLS_WORK multiply-adds, counted as a sweep that moves every
+    // coordinate (the solution starts from the current values, so repeated solves go on
+    // converging); below that the sweep limit is the caller's.
+    let sweep_work = (rows.nnz() + n).max(1) as f64;
+    let sweeps = sweeps.min((NNLS_WORK / sweep_work) as usize).max(50);
+    let mut grad: Vec<f64> = (0..n).map(|j| r[j] - rows.row(j).map(|(l, gjl)| gjl * x[l]).sum::<f64>()).collect();
     for _ in 0..sweeps {
         let mut change = 0.0f64;
         let mut scale = 0.0f64;
@@ -67,9 +80,8 @@ pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upp
             scale = scale.max(new.abs());
             if delta != 0.0 {
                 change = change.max(delta.abs());
-                let row = &g[j * n..(j + 1) * n];
-                for (gl, &gjl) in grad.iter_mut().zip(row) {
-                    *gl -= gjl * delta;
+                for (l, gjl) in rows.row(j) {
+                    grad[l] -= gjl * delta;
                 }
                 x[j] = new;
             }
@@ -77,6 +89,40 @@ pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upp
         if change <= 1e-10 * scale.max(1e-300) {
             break;
         }
+    }
+}
+
+/// The nonzero entries of a dense square matrix, row by row (compressed sparse rows).
+struct SparseRows {
+    start: Vec<usize>,
+    col: Vec<u32>,
+    val: Vec<f64>,
+}
+
+impl SparseRows {
+    fn of_dense(g: &[f64], n: usize) -> SparseRows {
+        let mut s = SparseRows { start: Vec::with_capacity(n + 1), col: Vec::new(), val: Vec::new() };
+        s.start.push(0);
+        for row in g.chunks_exact(n.max(1)).take(n) {
+            for (l, &v) in row.iter().enumerate() {
+                if v != 0.0 {
+                    s.col.push(l as u32);
+                    s.val.push(v);
+                }
+            }
+            s.start.push(s.col.len());
+        }
+        s
+    }
+
+    fn nnz(&self) -> usize {
+        self.col.len()
+    }
+
+    #[inline]
+    fn row(&self, j: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
+        let r = self.start[j]..self.start[j + 1];
+        self.col[r.clone()].iter().map(|&l| l as usize).zip(self.val[r].iter().copied())
     }
 }
 
@@ -269,18 +315,37 @@ impl Fitter<'_> {
                 })
                 .collect()
         });
+        // The columns that are not in `unit_direct`'s lists (every row has them), in order.
+        let row_wide: Vec<usize> = (0..cols.len()).filter(|&q| matches!(cols[q], Col::Ambient | Col::Gathered)).collect();
+        // Each block of rows sums into a Gram matrix of only the unknowns it has (a block
+        // of a map's luxels sees tens of its thousand lights; a dense k x k per block was
+        // tens of MB to clear and add, and worker threads mapped and unmapped it at every
+        // fit); the blocks are then added into the whole matrix in block order, so the
+        // sums do not depend on how the blocks were spread over threads.
         let chunk = 8192;
-        let (gram, rhs) = (0..n.div_ceil(chunk))
+        let parts: Vec<BlockGram> = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|ci| {
-                let mut gram = vec![vec![0.0f64; k * k]; 3];
-                let mut rhs = vec![vec![0.0f64; k]; 3];
                 let mut block_nz: Vec<Vec<(usize, f64)>> = Vec::new();
                 let mut basis: Vec<(usize, f64)> = Vec::new();
                 let block = ci * chunk..((ci + 1) * chunk).min(n);
                 if dense_cols.is_none() {
                     unit_direct(block.clone(), &mut block_nz);
                 }
+                // The block's unknowns, ascending, and each one's place among them.
+                let mut local = vec![u32::MAX; k];
+                let mut has = vec![false; k];
+                match &dense_cols {
+                    Some(_) => has.iter_mut().for_each(|h| *h = true),
+                    None => {
+                        block_nz.iter().flatten().for_each(|&(q, _)| has[unknown[q]] = true);
+                        row_wide.iter().for_each(|&q| has[unknown[q]] = true);
+                    }
+                }
+                let unknowns: Vec<usize> = (0..k).filter(|&p| has[p]).collect();
+                unknowns.iter().enumerate().for_each(|(l, &p)| local[p] = l as u32);
+                let m = unknowns.len();
+                let mut part = BlockGram { gram: [vec![0.0; m * m], vec![0.0; m * m], vec![0.0; m * m]], rhs: [vec![0.0; m], vec![0.0; m], vec![0.0; m]], unknowns };
                 for i in block.clone() {
                     let nz: &[(usize, f64)] = block_nz.get(i - block.start).map_or(&[], Vec::as_slice);
                     for c in 0..3 {
@@ -290,66 +355,78 @@ impl Fitter<'_> {
                         }
                         basis.clear();
                         match &dense_cols {
-                            Some(d) => basis.extend((0..cols.len()).map(|q| (unknown[q], d[q][i][c] * unit[q][c])).filter(|b| b.1 != 0.0)),
+                            Some(d) => basis.extend((0..cols.len()).map(|q| (local[unknown[q]] as usize, d[q][i][c] * unit[q][c])).filter(|b| b.1 != 0.0)),
                             None => {
                                 let a = rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64);
-                                basis.extend(nz.iter().map(|&(q, v)| (unknown[q], a * v * unit[q][c])));
-                                for (q, col) in cols.iter().enumerate() {
-                                    match col {
-                                        Col::Ambient => basis.push((unknown[q], a * unit[q][c])),
-                                        Col::Gathered => basis.push((unknown[q], bases.gathered.as_ref().map_or(0.0, |o| o[i][c] as f64) * unit[q][c])),
+                                basis.extend(nz.iter().map(|&(q, v)| (local[unknown[q]] as usize, a * v * unit[q][c])));
+                                for &q in &row_wide {
+                                    match cols[q] {
+                                        Col::Ambient => basis.push((local[unknown[q]] as usize, a * unit[q][c])),
+                                        Col::Gathered => basis.push((local[unknown[q]] as usize, bases.gathered.as_ref().map_or(0.0, |o| o[i][c] as f64) * unit[q][c])),
                                         _ => {}
                                     }
                                 }
                             }
                         }
                         let mid = rows.mid(i, c);
+                        let (gram, rhs) = (&mut part.gram[c], &mut part.rhs[c]);
                         for &(p, bp) in &basis {
-                            rhs[c][p] += w * bp * mid;
+                            rhs[p] += w * bp * mid;
                             for &(q, bq) in &basis {
-                                gram[c][p * k + q] += w * bp * bq;
+                                gram[p * m + q] += w * bp * bq;
                             }
                         }
                     }
                 }
-                (gram, rhs)
+                part
             })
-            .reduce(
-                || (vec![vec![0.0; k * k]; 3], vec![vec![0.0; k]; 3]),
-                |(mut g1, mut r1), (g2, r2)| {
-                    for c in 0..3 {
-                        g1[c].iter_mut().zip(&g2[c]).for_each(|(a, b)| *a += b);
-                        r1[c].iter_mut().zip(&r2[c]).for_each(|(a, b)| *a += b);
+            .collect();
+        let mut gram = vec![vec![0.0f64; k * k]; 3];
+        let mut rhs = vec![vec![0.0f64; k]; 3];
+        for part in &parts {
+            let m = part.unknowns.len();
+            for c in 0..3 {
+                for (a, &p) in part.unknowns.iter().enumerate() {
+                    rhs[c][p] += part.rhs[c][a];
+                    let row = &mut gram[c][p * k..(p + 1) * k];
+                    for (b, &q) in part.unknowns.iter().enumerate() {
+                        row[q] += part.gram[c][a * m + b];
                     }
-                    (g1, r1)
-                },
-            );
-        let frozen = self.frozen_emitters;
-        for c in 0..3 {
-            if kinds {
-                // Multipliers of the kinds (1: as they are); a kind without columns stays 1.
-                let mut x = vec![1.0f64; k];
-                let free = vec![true; k];
-                let upper = vec![f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::INFINITY, 1.0];
-                nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
-                for q in 0..cols.len() {
-                    values[q][c] *= x[unknown[q]];
                 }
-            } else {
-                let free: Vec<bool> = cols
-                    .iter()
-                    .map(|col| match col {
-                        Col::Light(j) => !self.locked[*j],
-                        Col::Sun | Col::Sky | Col::Surface(_) => !frozen,
-                        Col::Ambient | Col::Gathered => true,
-                    })
-                    .collect();
-                let upper: Vec<f64> = cols.iter().map(|col| if *col == Col::Gathered { 1.0 } else { f64::INFINITY }).collect();
-                let mut x: Vec<f64> = values.iter().map(|v| v[c]).collect();
-                nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
-                for q in 0..k {
-                    values[q][c] = x[q];
+            }
+        }
+        drop(parts);
+        let (frozen, locked) = (self.frozen_emitters, &self.locked);
+        // The three channels are independent solves: one per thread.
+        let solved: Vec<Vec<f64>> = (0..3)
+            .into_par_iter()
+            .map(|c| {
+                if kinds {
+                    // Multipliers of the kinds (1: as they are); a kind without columns stays 1.
+                    let mut x = vec![1.0f64; k];
+                    let free = vec![true; k];
+                    let upper = vec![f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::INFINITY, 1.0];
+                    nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
+                    x
+                } else {
+                    let free: Vec<bool> = cols
+                        .iter()
+                        .map(|col| match col {
+                            Col::Light(j) => !locked[*j],
+                            Col::Sun | Col::Sky | Col::Surface(_) => !frozen,
+                            Col::Ambient | Col::Gathered => true,
+                        })
+                        .collect();
+                    let upper: Vec<f64> = cols.iter().map(|col| if *col == Col::Gathered { 1.0 } else { f64::INFINITY }).collect();
+                    let mut x: Vec<f64> = values.iter().map(|v| v[c]).collect();
+                    nnls_cd(&gram[c], &rhs[c], k, &mut x, &free, &upper, 20_000);
+                    x
                 }
+            })
+            .collect();
+        for (c, x) in solved.iter().enumerate() {
+            for q in 0..cols.len() {
+                values[q][c] = if kinds { values[q][c] * x[unknown[q]] } else { x[q] };
             }
         }
         // Keep every coefficient just above zero so its logarithm stays finite.
@@ -382,6 +459,76 @@ mod tests {
     use crate::testutil::room;
     use crate::trace::bvh::Bvh;
     use glam::Vec3;
+
+    /// The dense sweep `nnls_cd` replaced, kept as its reference: every entry of `G`
+    /// updates the gradient.
+    fn nnls_dense_reference(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
+        let mut grad: Vec<f64> = (0..n).map(|j| r[j] - (0..n).map(|l| g[j * n + l] * x[l]).sum::<f64>()).collect();
+        for _ in 0..sweeps {
+            let (mut change, mut scale) = (0.0f64, 0.0f64);
+            for j in 0..n {
+                let gjj = g[j * n + j];
+                if !free[j] || !(gjj > 0.0) {
+                    continue;
+                }
+                let new = ((grad[j] + gjj * x[j]) / gjj).max(0.0).min(upper[j]);
+                let delta = new - x[j];
+                scale = scale.max(new.abs());
+                if delta != 0.0 {
+                    change = change.max(delta.abs());
+                    for (gl, &gjl) in grad.iter_mut().zip(&g[j * n..(j + 1) * n]) {
+                        *gl -= gjl * delta;
+                    }
+                    x[j] = new;
+                }
+            }
+            if change <= 1e-10 * scale.max(1e-300) {
+                break;
+            }
+        }
+    }
+
+    /// Lights along a corridor, each overlapping its neighbours only: a banded Gram
+    /// matrix (most entries zero), some lights held, some bounded, some pushed below zero.
+    /// The sparse sweep gives the dense sweep's solution to the bit.
+    #[test]
+    fn the_sparse_sweep_is_the_dense_one_to_the_bit() {
+        let n = 300;
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // G = A'A with A's columns supported on a window of rows around each light.
+        let m = 2 * n;
+        let mut a = vec![0.0f64; m * n];
+        for j in 0..n {
+            for i in (2 * j).saturating_sub(6)..(2 * j + 7).min(m) {
+                a[i * n + j] = next();
+            }
+        }
+        let mut g = vec![0.0f64; n * n];
+        for p in 0..n {
+            for q in 0..n {
+                g[p * n + q] = (0..m).map(|i| a[i * n + p] * a[i * n + q]).sum();
+            }
+        }
+        let r: Vec<f64> = (0..n).map(|_| next() - 0.3).collect();
+        let free: Vec<bool> = (0..n).map(|j| j % 17 != 0).collect();
+        let upper: Vec<f64> = (0..n).map(|j| if j % 29 == 0 { 0.05 } else { f64::INFINITY }).collect();
+        let x0: Vec<f64> = (0..n).map(|_| next()).collect();
+        assert!(g.iter().filter(|v| **v == 0.0).count() > n * n * 9 / 10, "the case is not sparse");
+        for sweeps in [3, 50, 2000] {
+            let (mut xs, mut xd) = (x0.clone(), x0.clone());
+            super::nnls_cd(&g, &r, n, &mut xs, &free, &upper, sweeps);
+            nnls_dense_reference(&g, &r, n, &mut xd, &free, &upper, sweeps.max(50));
+            assert_eq!(xs.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), xd.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{sweeps} sweeps");
+            assert!(xs.iter().zip(&upper).zip(&free).all(|((x, u), f)| !f || (*x >= 0.0 && x <= u)), "a free entry out of its bounds");
+            assert!(xs.iter().zip(&x0).zip(&free).any(|((x, x0), f)| *f && x != x0), "nothing moved");
+        }
+    }
 
     /// Most rows censored far above what the two-sided rows ask: the solve fits only the
     /// two-sided rows' middles and leaves the censored ones far below their bounds, worse
