@@ -20,47 +20,23 @@ impl Fitter<'_> {
     /// single lights (of which the four weakest are tried), so that a start of a thousand
     /// source lights needs tens of refits, not a thousand. Returns how many.
     pub fn prune(&mut self, tol: f64) -> usize {
-        let mut removed = 0;
-        let start = self.fit_linear();
-        let ceiling = start * (1.0 + PRUNE_BUDGET) + tol;
-        let mut base = start;
-        let mut batch = ((0..self.model.lights.len()).filter(|&j| !self.locked[j]).count() / 4).max(1);
-        loop {
-            if self.out_of_time() || self.model.lights.len() <= 1 {
-                return removed;
+        let free = (0..self.model.lights.len()).filter(|&j| !self.locked[j]).count();
+        let weakest_first = |f: &Self| {
+            let lights = &f.model.lights;
+            let mut order: Vec<usize> = (0..lights.len()).filter(|&j| !f.locked[j]).collect();
+            order.sort_by(|&a, &b| lights[a].rgb.iter().sum::<f32>().total_cmp(&lights[b].rgb.iter().sum::<f32>()));
+            order
+        };
+        let remove = |f: &mut Self, take: &[usize]| {
+            let mut take = take.to_vec();
+            take.sort_unstable_by(|x, y| y.cmp(x));
+            for j in take {
+                f.remove_light(j);
             }
-            let mut order: Vec<usize> = (0..self.model.lights.len()).filter(|&j| !self.locked[j]).collect();
-            order.sort_by(|&a, &b| self.model.lights[a].rgb.iter().sum::<f32>().total_cmp(&self.model.lights[b].rgb.iter().sum::<f32>()));
-            let b = batch.min(order.len()).min(self.model.lights.len() - 1);
-            if b == 0 {
-                return removed;
-            }
-            let saved = (self.model.clone(), self.locked.clone(), self.vis.clone());
-            // The candidates: the `b` weakest together, or (single lights) each of the four
-            // weakest in turn.
-            let tries: Vec<Vec<usize>> = if b > 1 { vec![order[..b].to_vec()] } else { order.iter().take(4).map(|&j| vec![j]).collect() };
-            let mut done = false;
-            for mut take in tries {
-                take.sort_unstable_by(|x, y| y.cmp(x));
-                for &j in &take {
-                    self.remove_light(j);
-                }
-                let e = self.fit_linear();
-                if e <= base + tol && e <= ceiling {
-                    removed += take.len();
-                    base = e;
-                    done = true;
-                    break;
-                }
-                (self.model, self.locked, self.vis) = saved.clone();
-            }
-            if !done {
-                if b == 1 {
-                    return removed;
-                }
-                batch = b / 2;
-            }
-        }
+        };
+        // One light stays.
+        let most = |f: &Self| f.model.lights.len().saturating_sub(1);
+        self.in_batches(tol, Some((free / 4).max(1)), weakest_first, most, remove, |_, _| {})
     }
 
     /// Merges pairs of free point lights closer than `dist` m when that raises the
@@ -70,48 +46,72 @@ impl Fitter<'_> {
     /// light in one pair at most) in the order of [`merge_cost`], the pair whose
     /// one light best stands for both first; then a quarter of the pairs are merged at
     /// once, halved when a batch costs too much, down to single pairs, of which the
-    /// [`MERGE_SINGLES`] cheapest are tried (a single pair that failed is not tried again
+    /// [`SINGLES`] cheapest are tried (a single pair that failed is not tried again
     /// while neither light changes). The scan it replaces tried every pair within `dist`
     /// with a refit each, hundreds of refits once the error had reached the budget:
     /// 0.8 s each on oacmpdm3's 450 lights. Returns how many merges were made.
     pub fn merge(&mut self, dist: f32, tol: f64) -> usize {
-        let mut merged = 0;
         // Pairs that failed alone stay failed while neither light changes: keyed by
         // positions, so a success (which renumbers the lights) keeps them.
         let key = |l: &Light| l.pos.to_array().map(f32::to_bits);
-        let mut failed: std::collections::HashSet<([u32; 3], [u32; 3])> = std::collections::HashSet::new();
+        let failed = std::cell::RefCell::new(std::collections::HashSet::<([u32; 3], [u32; 3])>::new());
+        let candidates = |f: &Self| f.merge_candidates(dist).into_iter().filter(|&(a, b)| !failed.borrow().contains(&(key(&f.model.lights[a]), key(&f.model.lights[b])))).collect();
+        let failed_alone = |f: &Self, (a, b): (usize, usize)| {
+            failed.borrow_mut().insert((key(&f.model.lights[a]), key(&f.model.lights[b])));
+        };
+        self.in_batches(tol, None, candidates, |_| usize::MAX, Self::merge_pairs, failed_alone)
+    }
+
+    /// The search pruning and merging share. Each round `candidates` lists the changes
+    /// (best first); the first `b` of them are applied together (`apply`, at most `most`
+    /// at once) and the linear coefficients refitted; the batch stands when the error
+    /// rose by at most `tol` and stays within `tol` plus [`PRUNE_BUDGET`] of where it was
+    /// before any, else it is undone and `b` halves. `b` starts at `first` (default: a
+    /// quarter of the first list). At `b = 1` each of the [`SINGLES`] best candidates is
+    /// tried alone (`failed_alone` hears of each that failed); when none stands, the
+    /// search ends. Returns how many changes stood.
+    fn in_batches<C: Copy>(
+        &mut self,
+        tol: f64,
+        first: Option<usize>,
+        candidates: impl Fn(&Self) -> Vec<C>,
+        most: impl Fn(&Self) -> usize,
+        apply: impl Fn(&mut Self, &[C]),
+        failed_alone: impl Fn(&Self, C),
+    ) -> usize {
+        let mut done_count = 0;
         let mut base = self.fit_linear();
         let ceiling = base * (1.0 + PRUNE_BUDGET) + tol;
-        let mut batch: Option<usize> = None;
+        let mut batch = first;
         loop {
             if self.out_of_time() {
-                return merged;
+                return done_count;
             }
-            let pairs: Vec<(usize, usize)> = self.merge_candidates(dist).into_iter().filter(|&(a, b)| !failed.contains(&(key(&self.model.lights[a]), key(&self.model.lights[b])))).collect();
-            if pairs.is_empty() {
-                return merged;
+            let list = candidates(self);
+            let b = (*batch.get_or_insert((list.len() / 4).max(1))).min(list.len()).min(most(self));
+            if b == 0 {
+                return done_count;
             }
-            let b = (*batch.get_or_insert((pairs.len() / 4).max(1))).min(pairs.len());
-            let tries: Vec<&[(usize, usize)]> = if b > 1 { vec![&pairs[..b]] } else { pairs.chunks(1).take(MERGE_SINGLES).collect() };
+            let tries: Vec<&[C]> = if b > 1 { vec![&list[..b]] } else { list.chunks(1).take(SINGLES).collect() };
             let saved = (self.model.clone(), self.locked.clone(), self.vis.clone());
             let mut done = false;
             for take in tries {
-                self.merge_pairs(take);
+                apply(self, take);
                 let e = self.fit_linear();
                 if e <= base + tol && e <= ceiling {
-                    merged += take.len();
+                    done_count += take.len();
                     base = e;
                     done = true;
                     break;
                 }
                 (self.model, self.locked, self.vis) = saved.clone();
-                if let [(a, b)] = take {
-                    failed.insert((key(&self.model.lights[*a]), key(&self.model.lights[*b])));
+                if let [c] = take {
+                    failed_alone(self, *c);
                 }
             }
             if !done {
                 if b == 1 {
-                    return merged;
+                    return done_count;
                 }
                 batch = Some(b / 2);
             }
@@ -157,9 +157,9 @@ impl Fitter<'_> {
     }
 }
 
-/// Single pairs tried, cheapest first, once batches of pairs have failed; when none of
-/// them merges, merging stops.
-pub const MERGE_SINGLES: usize = 4;
+/// Single candidates (lights to prune, pairs to merge) tried, best first, once batches
+/// have failed; when none of them stands, the search stops.
+pub const SINGLES: usize = 4;
 
 /// Lights `a` and `b` as one point light: their intensity-weighted position, their
 /// summed intensity.
