@@ -1,5 +1,5 @@
 //! As few lights as the data needs: pruning lights whose removal costs (almost) nothing,
-//! merging lights that sit together.
+//! merging lights that sit together; both by one batched search ([`Fitter::in_batches`]).
 
 use rayon::prelude::*;
 
@@ -17,7 +17,7 @@ impl Fitter<'_> {
     /// (without that bound the small steps add up: on oacmpdm4, 29 of 32 lights went, each
     /// under 0.002, and the error rose from 0.28 to 0.32). Lights go in batches, weakest
     /// first: a quarter of the free lights, halved when a batch costs too much, down to
-    /// single lights (of which the four weakest are tried), so that a start of a thousand
+    /// single lights (of which the [`SINGLES`] weakest are tried), so that a start of a thousand
     /// source lights needs tens of refits, not a thousand. Returns how many.
     pub fn prune(&mut self, tol: f64) -> usize {
         let free = (0..self.model.lights.len()).filter(|&j| !self.locked[j]).count();
