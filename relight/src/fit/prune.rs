@@ -1,5 +1,5 @@
 //! As few lights as the data needs: pruning lights whose removal costs (almost) nothing,
-//! merging lights that sit together; both by one batched search ([`Fitter::in_batches`]).
+//! merging lights that sit together; both by one batched search (`Fitter::in_batches`).
 
 use rayon::prelude::*;
 
