@@ -201,7 +201,7 @@ impl Fitter<'_> {
     pub fn solve_linear(&mut self) -> f64 {
         if self.model.minlight.is_none() {
             self.fit_linear_once();
-            return if self.failure.is_some() { f64::NAN } else { self.eval().rel_error };
+            return if self.failure.is_some() { f64::NAN } else { self.value().rel_error };
         }
         // The rows held at the minlight floor depend on the coefficients: refitted until
         // the error stops falling (a fixed point of the floor set), the best kept.
@@ -211,7 +211,7 @@ impl Fitter<'_> {
             if self.failure.is_some() {
                 return f64::NAN;
             }
-            let e = self.eval().rel_error;
+            let e = self.value().rel_error;
             match &best {
                 Some((b, _)) if !(e < *b - 1e-6) => break,
                 _ => best = Some((e, self.model.clone())),

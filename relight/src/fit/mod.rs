@@ -203,12 +203,27 @@ impl<'a> Fitter<'a> {
     }
 
     pub fn eval_model(&mut self, m: &Model) -> Eval {
+        self.eval_model_as(m, true)
+    }
+
+    /// The objective and error of the current model without the gradient (re-traces what
+    /// moved): what a linear refit needs to know where it landed.
+    pub fn value(&mut self) -> Eval {
+        let m = self.model.clone();
+        self.eval_model_as(&m, false)
+    }
+
+    fn eval_model_as(&mut self, m: &Model, gradient: bool) -> Eval {
         if self.failure.is_some() {
             return Eval::failed(m);
         }
         let r = self.retrace(m).and_then(|_| {
             self.evaluations += 1;
-            model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
+            if gradient {
+                model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
+            } else {
+                model::value(m, self.rows, self.bases, &self.vis, self.backend)
+            }
         });
         match r {
             Ok(ev) => ev,
