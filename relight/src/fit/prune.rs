@@ -135,7 +135,8 @@ impl Fitter<'_> {
     /// light in one pair at most), cheapest [`merge_cost`] first.
     fn merge_candidates(&self, dist: f32) -> Vec<(usize, usize)> {
         let lights = &self.model.lights;
-        let free = |j: usize| !self.locked[j] && lights[j].spot.is_none();
+        // A light without traced bits (the cache behind after a backend failure) is no candidate.
+        let free = |j: usize| !self.locked[j] && lights[j].spot.is_none() && j < self.vis.bits.len();
         let near: Vec<(usize, usize)> = (0..lights.len())
             .filter(|&a| free(a))
             .flat_map(|a| (a + 1..lights.len()).filter(move |&b| free(b) && (lights[a].pos - lights[b].pos).length() <= dist).map(move |b| (a, b)))
