@@ -320,6 +320,9 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     if let Some(s) = &rep.subdivision {
         println!("  subdivide {} -> {} vertices in {} rounds (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.rounds, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
     }
+    if let Some(b) = rep.data_clamp_byte {
+        println!("  data      clamped at byte {b}, not 255 (q3map2's -compensate): colours there are lower bounds");
+    }
     match &rep.luxel {
         Some(l) => {
             println!(

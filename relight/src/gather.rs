@@ -143,7 +143,7 @@ mod tests {
         quad(&mut m, Vec3::X, Vec3::Z, Vec3::Y, 0);
         m.tri_source = (0..m.triangles.len() as u32).collect();
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
         let dark = Material { name: "floor".into(), lighting: Lighting::None, ..lit.clone() };
         let tex = Texture { width: 1, height: 1, rgba8: vec![255; 4], wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
         let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None };
@@ -187,7 +187,7 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
         let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None };
         let bvh = Bvh::build(&scene.mesh);
         let mut pb = Rows::new(Sampling::plain(10.0));

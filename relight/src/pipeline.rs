@@ -290,6 +290,10 @@ pub struct Report {
     pub look: Look,
     pub target: TargetStats,
     pub luxel: Option<luxel::LuxelStats>,
+    /// The byte at which the data was clamped, where it is below q3map2's 255 (the
+    /// compile's `-compensate`, found in the data: [`crate::scene::find_clamp`]); the
+    /// texels there are lower bounds.
+    pub data_clamp_byte: Option<u8>,
     pub problem_rows: usize,
     /// The compile's recorded command line, when the map has one.
     pub compile_cmdline: Option<String>,
@@ -432,11 +436,12 @@ fn luxel_rows(scene: &Scene, tg: &projection::Target, bvh: &Bvh) -> luxel::Luxel
 fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(Rows, TargetStats, Option<luxel::LuxelStats>, String)> {
     let (lo, hi) = scene.mesh.bounds();
     let diag = (hi - lo).length();
-    let ob = scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(2, |m| m.overbright_bits);
+    let lit = scene.materials.iter().find(|m| m.lighting != Lighting::None);
+    let (ob, per_byte) = lit.map_or((2, 1.0), |m| (m.overbright_bits, m.stored_per_light_byte()));
     let (mut rows, tstats, luxel_stats, backend) = match opts.target {
         TargetSpace::Vertex => {
             let (tg, tstats, target_backend) = project(plan, scene)?;
-            (projection::rows(&scene.mesh, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob)), tstats, None, target_backend)
+            (projection::rows(&scene.mesh, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob, per_byte)), tstats, None, target_backend)
         }
         TargetSpace::Luxel => {
             // The per-vertex projection is still needed for vertex-lit materials' rows.
@@ -841,8 +846,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The final state exactly: the fit re-traces a light only once it has moved more than
     // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
     // every light where it is and refit the linear coefficients for it.
-    // The exact linear fit leaves censored channels out, so where most of the data is
-    // censored it can be worse than what the phases reached: then the traced state is kept
+    // The exact linear fit holds censored channels only through an active set of their
+    // bounds, so where most of the data is censored it can be worse than what the phases
+    // reached: then the traced state is kept
     // with the phases' coefficients (a step never ends worse than it began).
     if !fit.out_of_time() && tracing.is_none() {
         fit.retrace_tol = 0.0;
@@ -996,6 +1002,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         look: opts.look,
         target: tstats,
         luxel: luxel_stats,
+        data_clamp_byte: scene.materials.iter().map(|m| m.censor_byte).min().filter(|&b| b < crate::scene::CENSOR_BYTE),
         problem_rows: rows.len(),
         compile_cmdline: scene.compile.cmdline.clone(),
         compile_note,
@@ -1118,8 +1125,8 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
         let chosen = if keep { with } else { without };
         (current, fit.model, fit.vis) = chosen;
     }
-    // The variants are compared after exact linear fits, which leave censored channels
-    // out and can be worse than what the phases reached: where the decision kept every
+    // The variants are compared after exact linear fits, which hold censored channels
+    // only through an active set and can be worse than what the phases reached: where the decision kept every
     // term as it was, the entry stands unless the fits improved on it (a re-run from a
     // relit file's own state starts and stays there).
     if terms_of(&fit.model) == terms_of(&entry.0) && !(current < entry.2) {

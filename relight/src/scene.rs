@@ -59,6 +59,11 @@ pub struct Material {
     /// Lightmap and vertex-colour decoding: `e = (byte/255)^gamma * 2^overbright_bits`.
     pub overbright_bits: u32,
     pub lightmap_gamma: f32,
+    /// Stored bytes at or above this value are clamped (censored: lower bounds). q3map2
+    /// clamps a luxel at 255 keeping its hue ([`CENSOR_BYTE`] allows for the truncation
+    /// to 254), then divides by `-compensate`, so a compile with `-compensate 2` clamps
+    /// at 127 ([`find_clamp`] finds it in the data).
+    pub censor_byte: u8,
     /// A sky surface: sunlight passes it (the sun is behind it), it carries no target.
     pub sky: bool,
     /// Both sides face outward (glTF `doubleSided`, q3 `cull none`).
@@ -99,6 +104,89 @@ impl Material {
         let b = byte as f32;
         (self.decode_exact(b / 255.0), self.decode_exact(((b + 1.0) / 255.0).min(256.0 / 255.0)))
     }
+
+    /// Stored bytes per byte of q3map2's light, after the clamp: `1 / -compensate`,
+    /// read from the data's clamp (`255 / (clamp + 1/2)`: 2 for a clamp at 127), 1 where
+    /// the data shows q3map2's own. The compile's tolerances are in q3map2's bytes.
+    pub fn stored_per_light_byte(&self) -> f32 {
+        if self.censor_byte >= CENSOR_BYTE {
+            1.0
+        } else {
+            (self.censor_byte as f32 + 0.5) / 255.0
+        }
+    }
+
+    /// Whether a stored colour was clamped: one channel at the clamp (q3map2 scaled the
+    /// whole colour down, so every channel of it is a lower bound).
+    pub fn censored(&self, bytes: &[u8]) -> bool {
+        bytes.iter().any(|&b| b >= self.censor_byte)
+    }
+}
+
+/// A stored channel at or above this byte is censored where the data shows no lower
+/// clamp (q3map2's default): q3map2 scales an overflowing luxel so its largest channel is
+/// 255.0, and the float-to-byte truncation of that product often stores 254: both are
+/// clamped values.
+pub const CENSOR_BYTE: u8 = 254;
+
+/// The lowest clamp [`find_clamp`] believes: below it a pile-up at the top byte is a dark
+/// map's shape, not a clamp (`-compensate 8` clamps at 31).
+const LOWEST_CLAMP: u8 = 24;
+
+/// A clamp below 255 found in the data ([`find_clamp`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DataClamp {
+    /// Stored bytes at or above this are clamped.
+    pub byte: u8,
+    /// Lightmap texels and vertex colours whose largest channel is at the clamp.
+    pub at_clamp: usize,
+    /// Lit texels and colours counted (largest channel above 0).
+    pub lit: usize,
+}
+
+/// The byte at which the compile clamped the data, when it is below q3map2's 255.
+///
+/// q3map2 (`ColorToBytes`) clamps a luxel at 255 keeping its hue and then divides it by
+/// `-compensate`, so a compile with `-compensate 2` never stores more than 127, and every
+/// luxel that overflowed lands exactly there: the histogram of each stored colour's largest
+/// channel ends in a spike, far above the bytes just below it (oacmpdm2: 3830 texels at
+/// 127, at most 118 on each of 123-126). A lightmap whose light simply stops below 255 ends
+/// in a tail instead. Counted over the lightmap texels of lightmapped materials and the
+/// vertex colours of vertex-lit ones. `None` where the data's top is q3map2's own clamp,
+/// or shows none.
+pub fn find_clamp(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> Option<DataClamp> {
+    let mut hist = [0usize; 256];
+    let mut pages: Vec<usize> = materials.iter().filter(|m| m.lighting == Lighting::Lightmap).filter_map(|m| m.lightmap).filter(|&i| i < textures.len()).collect();
+    pages.sort_unstable();
+    pages.dedup();
+    for t in pages.iter().map(|&i| &textures[i]) {
+        for px in t.rgba8.chunks_exact(4) {
+            hist[px[0].max(px[1]).max(px[2]) as usize] += 1;
+        }
+    }
+    for (v, c) in mesh.colors.iter().enumerate() {
+        let vertex_lit = mesh.v_material.get(v).and_then(|&m| materials.get(m as usize)).is_some_and(|m| m.lighting == Lighting::Vertex);
+        if vertex_lit {
+            let top = c.iter().fold(0.0f32, |a, &x| a.max(x));
+            hist[(top.clamp(0.0, 1.0) * 255.0).round() as usize] += 1;
+        }
+    }
+    let top = (1..256).rev().find(|&b| hist[b] > 0)? as u8;
+    let lit: usize = hist[1..].iter().sum();
+    // A spike: many colours at `b` and above, at least four times as many as on any of
+    // the four bytes below, and not most of the lit data (a uniformly lit test scene is
+    // no clamp). The truncation can split the clamped value over two bytes (as 255 and
+    // 254), hence the second try.
+    let spike = |b: usize| {
+        let n: usize = hist[b..=top as usize].iter().sum();
+        let below = hist[b.saturating_sub(4)..b].iter().copied().max().unwrap_or(0);
+        n >= 16 && n >= 4 * below.max(1) && 4 * n <= lit
+    };
+    if top >= CENSOR_BYTE || top < LOWEST_CLAMP {
+        return None;
+    }
+    let byte = [top, top - 1].into_iter().find(|&b| spike(b as usize))?;
+    Some(DataClamp { byte, at_clamp: hist[byte as usize..].iter().sum(), lit })
 }
 
 /// A material that emits light in q3map2's compile: `q3map_surfacelight` (from the
@@ -323,3 +411,63 @@ pub mod q3map2 {
     pub const DIRT_DEPTH_UNITS: f32 = 128.0;
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lightmapped material over one lightmap page whose texels' largest channels are
+    /// `bytes` (as grey), and a vertex-lit one with no vertices.
+    fn page(bytes: &[u8]) -> (Mesh, Vec<Material>, Vec<Texture>) {
+        let rgba8 = bytes.iter().flat_map(|&b| [b, b / 2, b / 4, 255]).collect();
+        let tex = Texture { width: bytes.len() as u32, height: 1, rgba8, wrap_s: Wrap::Clamp, wrap_t: Wrap::Clamp };
+        let mat = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        (Mesh::default(), vec![mat], vec![tex])
+    }
+
+    /// A smooth falling tail of lit bytes from 1 to `top` (more dark texels than bright).
+    fn tail(top: u8) -> Vec<u8> {
+        (1..=top).flat_map(|b| std::iter::repeat(b).take(1 + (top - b) as usize / 8)).collect()
+    }
+
+    #[test]
+    fn a_compensated_compile_is_found_clamped_at_its_spike() {
+        // -compensate 2: everything that overflowed stored at 127, the rest a tail below.
+        let mut bytes = tail(126);
+        bytes.extend(std::iter::repeat(127).take(40));
+        let (mesh, mats, tex) = page(&bytes);
+        let c = find_clamp(&mesh, &mats, &tex).expect("a spike at 127");
+        assert_eq!((c.byte, c.at_clamp), (127, 40));
+        // The truncation split the clamped value over two bytes (as 255 and 254).
+        let mut bytes = tail(83);
+        bytes.extend(std::iter::repeat(84).take(30));
+        bytes.extend(std::iter::repeat(85).take(25));
+        let (mesh, mats, tex) = page(&bytes);
+        assert_eq!(find_clamp(&mesh, &mats, &tex).map(|c| (c.byte, c.at_clamp)), Some((84, 55)));
+    }
+
+    #[test]
+    fn a_tail_a_uniform_page_a_dark_page_and_q3map2s_own_clamp_are_no_clamp() {
+        for (what, bytes) in [
+            ("a tail ending below 255", tail(140)),
+            ("a uniformly lit page", [tail(60), vec![61; 400]].concat()),
+            ("a dark page", [tail(12), vec![13; 40]].concat()),
+            ("q3map2's own clamp", [tail(253), vec![255; 40]].concat()),
+            ("a few texels at the top", [tail(126), vec![127; 3]].concat()),
+        ] {
+            let (mesh, mats, tex) = page(&bytes);
+            assert_eq!(find_clamp(&mesh, &mats, &tex), None, "{what}");
+        }
+    }
+
+    #[test]
+    fn the_clamp_makes_a_colour_a_lower_bound() {
+        let (_, mut mats, _) = page(&[1]);
+        let m = &mut mats[0];
+        assert!(m.censored(&[255, 10, 0]) && m.censored(&[254, 10, 0]) && !m.censored(&[253, 10, 0]));
+        assert_eq!(m.stored_per_light_byte(), 1.0);
+        m.censor_byte = 127;
+        assert!(m.censored(&[10, 127, 0]) && !m.censored(&[126, 126, 126]));
+        assert_eq!(m.stored_per_light_byte(), 0.5);
+    }
+}

@@ -48,7 +48,6 @@ use crate::error::{Error, Result};
 use crate::io::{baked_gltf, gltf_in};
 use crate::model::stated;
 use crate::pipeline::{render_on, BackendChoice};
-use crate::rows::projection::CENSOR_BYTE;
 use page::Page;
 
 #[derive(Debug, Clone)]
@@ -215,7 +214,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             let (Some(t), Some(m)) = (scene.textures.get(tex as usize), scene.materials.get(rows.material[i] as usize)) else { return [0.0; 3] };
             let o = (y as usize * t.width as usize + x as usize) * 4;
             let b = [t.rgba8[o], t.rgba8[o + 1], t.rgba8[o + 2]];
-            censored_row[i] = b.iter().any(|&v| v >= CENSOR_BYTE);
+            censored_row[i] = m.censored(&b);
             interval[i] = b.map(|v| {
                 let (lo, hi) = m.interval(v);
                 (lo as f64, hi as f64)

@@ -12,7 +12,7 @@ use glam::{DMat3, DMat4, DVec3, Vec2, Vec3};
 use serde_json::Value;
 
 use crate::error::{Error, Result};
-use crate::scene::{InputLight, InputSun, Lighting, Material, Mesh, Scene, Texture, Wrap};
+use crate::scene::{find_clamp, InputLight, InputSun, Lighting, Material, Mesh, Scene, Texture, Wrap, CENSOR_BYTE};
 
 /// Default `2^overbright` exponent of q3map2 lightmaps (CONVENTIONS.md).
 pub const DEFAULT_OVERBRIGHT_BITS: u32 = 2;
@@ -388,6 +388,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             lightmap,
             overbright_bits: ex.get("q3_overbright_bits").and_then(Value::as_u64).map(|v| v.min(8) as u32).or(scene_ob).unwrap_or(DEFAULT_OVERBRIGHT_BITS),
             lightmap_gamma: ex.get("q3_lightmap_gamma").and_then(Value::as_f64).filter(|g| g.is_finite() && *g > 0.0).unwrap_or(1.0) as f32,
+            censor_byte: CENSOR_BYTE,
             sky,
             double_sided: m.double_sided(),
             casts_shadow: ex.get("q3_casts_shadow").and_then(Value::as_bool).unwrap_or(m.alpha_mode() != gltf::material::AlphaMode::Blend),
@@ -420,6 +421,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         lightmap: None,
         overbright_bits: scene_ob.unwrap_or(DEFAULT_OVERBRIGHT_BITS),
         lightmap_gamma: 1.0,
+        censor_byte: CENSOR_BYTE,
         sky: false,
         double_sided: false,
         casts_shadow: true,
@@ -589,6 +591,12 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     }
     repair_normals(&mut mesh);
     mesh.reweld();
+    // The data's own clamp, where the compile put it below 255 (`-compensate`).
+    if let Some(c) = find_clamp(&mesh, &materials, &textures) {
+        for m in &mut materials {
+            m.censor_byte = c.byte;
+        }
+    }
     lights.sort_by_key(|l| l.node);
     suns.sort_by_key(|s| s.node);
     let units_m = scene_extras.get("q3_scale").and_then(Value::as_f64).filter(|s| s.is_finite() && *s > 1e-6 && *s < 1e3).unwrap_or(q3gltf_convert::units::DEFAULT_SCALE) as f32;

@@ -32,7 +32,7 @@ use crate::rows::{Row, Rows, Sampling, SolidAhead};
 use crate::trace::bvh::Bvh;
 use crate::trace::solids::Solids;
 use crate::scene::{Lighting, Scene};
-use crate::rows::projection::{Target, CENSOR_BYTE};
+use crate::rows::projection::Target;
 use crate::texel;
 
 /// A texel centre counts as inside a triangle down to this barycentric coordinate.
@@ -90,8 +90,9 @@ pub struct Luxels {
 /// with q3map2's sampling for the scene's units ([`Sampling::q3map2`]).
 pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxels {
     let mesh = &scene.mesh;
-    let ob = scene.materials.iter().find(|m| m.lighting == Lighting::Lightmap).map_or(2, |m| m.overbright_bits);
-    let mut pb = Rows::new(Sampling::q3map2(scene_diagonal, scene.units_m, ob));
+    let lit = scene.materials.iter().find(|m| m.lighting == Lighting::Lightmap);
+    let (ob, per_byte) = lit.map_or((2, 1.0), |m| (m.overbright_bits, m.stored_per_light_byte()));
+    let mut pb = Rows::new(Sampling::q3map2(scene_diagonal, scene.units_m, ob, per_byte));
     let sample_offset = crate::scene::q3map2::SAMPLE_OFFSET_UNITS * scene.units_m;
     let mut st = LuxelStats::default();
     // Which texels are taken, per lightmap texture (allocated for lightmaps only).
@@ -192,7 +193,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 let iv = bytes.map(|b| mat.interval(b));
                 let lo = [0, 1, 2].map(|ch| albedo[ch] * iv[ch].0);
                 let hi = [0, 1, 2].map(|ch| albedo[ch] * iv[ch].1);
-                let censored = bytes.iter().any(|&b| b >= CENSOR_BYTE);
+                let censored = mat.censored(&bytes);
                 if !pos.is_finite() || !hi.iter().all(|v| v.is_finite()) {
                     continue;
                 }
@@ -477,7 +478,7 @@ mod tests {
         m.tri_material = vec![0, 0];
         m.tri_source = vec![0, 1];
         m.reweld();
-        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
+        let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
         Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None }
     }
 

@@ -60,12 +60,15 @@ impl Sampling {
     }
 
     /// q3map2's sampling for a scene of `units_m` meters per Quake unit whose lightmaps
-    /// decode with `overbright_bits`: the inverse square never closer than 16 units,
-    /// shadow rays blind within 1.5 units of the sample origin, and a light's contribution
-    /// of at most 1 byte left out.
-    pub fn q3map2(scene_diagonal: f32, units_m: f32, overbright_bits: u32) -> Sampling {
+    /// decode with `overbright_bits` and store `stored_per_light_byte` bytes per byte of
+    /// q3map2's light ([`crate::scene::Material::stored_per_light_byte`]): the inverse
+    /// square never closer than 16 units, shadow rays blind within 1.5 units of the sample
+    /// origin, and a light's contribution of at most 1 byte of q3map2's light left out
+    /// (half a stored byte after `-compensate 2`).
+    pub fn q3map2(scene_diagonal: f32, units_m: f32, overbright_bits: u32, stored_per_light_byte: f32) -> Sampling {
         use crate::scene::q3map2::*;
-        let falloff = (FALLOFF_TOLERANCE_BYTES as f64 * std::f64::consts::PI * q3gltf_convert::units::e_per_byte(overbright_bits)) as f32;
+        let stored = FALLOFF_TOLERANCE_BYTES as f64 * stored_per_light_byte as f64;
+        let falloff = (stored * std::f64::consts::PI * q3gltf_convert::units::e_per_byte(overbright_bits)) as f32;
         Sampling { eps: MIN_DISTANCE_UNITS * units_m, inhibit: INHIBIT_RADIUS_UNITS * units_m, falloff, spot_ramp: SPOT_RAMP_UNITS * units_m, on_epsilon: PLANE_EPSILON_UNITS * units_m, ..Sampling::plain(scene_diagonal) }
     }
 }

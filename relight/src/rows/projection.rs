@@ -33,10 +33,6 @@ use crate::texel;
 pub const CORNER_FLOATS: usize = 13;
 /// Largest quadrature order per triangle edge (`m`): at most `m^2 = 1024` samples.
 pub const MAX_ORDER: u32 = 32;
-/// A channel stored at or above this byte value is censored (q3map2 clamped it). q3map2
-/// scales an overflowing luxel so its largest channel is 255.0, and the float-to-byte
-/// truncation of that product often stores 254: both are clamped values.
-pub const CENSOR_BYTE: u8 = 254;
 
 /// Per-vertex data the forward model and the objective need.
 #[derive(Debug, Clone, Default)]
@@ -169,7 +165,7 @@ pub fn triangle_sums(scene: &Scene, t: usize, out: &mut [f32; 3 * CORNER_FLOATS]
                 // q3map2 scales an overflowing texel down keeping its hue: when one channel
                 // is at 255, every channel of the texel is a lower bound.
                 let near = texel::nearest(tx, uv1.x, uv1.y);
-                let censored = near[..3].iter().any(|&b| b >= CENSOR_BYTE);
+                let censored = mat.censored(&near[..3]);
                 (e, [censored; 3])
             }
             None => ([0.0; 3], [false; 3]),
@@ -263,7 +259,7 @@ pub fn gather(scene: &Scene, sums: &[f32], samples: u64) -> (Target, TargetStats
             Lighting::Vertex => {
                 st.vertex_lit_vertices += 1;
                 let col = mesh.colors[v];
-                let clamped = col.iter().any(|&x| x * 255.0 >= CENSOR_BYTE as f32 - 0.5);
+                let clamped = mat.censored(&col.map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8));
                 for c in 0..3 {
                     // The colour's byte stands for an interval, as a lightmap texel does.
                     let (lo, hi) = mat.interval((col[c].clamp(0.0, 1.0) * 255.0).round() as u8);
