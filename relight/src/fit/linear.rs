@@ -204,9 +204,9 @@ impl Fitter<'_> {
     /// while the rows at the minlight floor change; for a caller that compares the states
     /// itself and cannot afford the entry's evaluation (the placement's tries).
     pub fn solve_linear(&mut self) -> f64 {
-        let censored = self.rows.lower.iter().zip(&self.rows.weight).any(|(l, w)| (0..3).any(|c| w[c] < 1.0 && l[c] > 0.0));
+        let censored = self.rows.any_censored();
         if self.model.minlight.is_none() && !censored {
-            self.fit_linear_once();
+            self.fit_linear_once(censored);
             return if self.failure.is_some() { f64::NAN } else { self.value().rel_error };
         }
         // The rows held at the minlight floor, and the censored channels below their
@@ -215,7 +215,7 @@ impl Fitter<'_> {
         let mut best: Option<(f64, crate::model::Model)> = None;
         let rounds = if self.model.minlight.is_some() { MINLIGHT_ROUNDS } else { CENSORED_ROUNDS };
         for _ in 0..rounds {
-            self.fit_linear_once();
+            self.fit_linear_once(censored);
             if self.failure.is_some() {
                 return f64::NAN;
             }
@@ -230,7 +230,9 @@ impl Fitter<'_> {
         e
     }
 
-    fn fit_linear_once(&mut self) {
+    /// One solve; `censored`: whether the rows have censored channels (their active set
+    /// is taken from the current model).
+    fn fit_linear_once(&mut self, censored: bool) {
         let (cols, mut values) = self.columns();
         if cols.is_empty() {
             return;
@@ -250,7 +252,6 @@ impl Fitter<'_> {
         // (its one-sided residual is then a plain one: an active set, refitted in
         // `solve_linear`'s rounds). Without it a clamped light fixture counted for nothing,
         // and a new light took intensity from the emitter that had reached the clamp.
-        let censored = rows.lower.iter().zip(&rows.weight).any(|(l, w)| (0..3).any(|c| w[c] < 1.0 && l[c] > 0.0));
         let (floor, below): (Vec<[bool; 3]>, Vec<[bool; 3]>) = match (m.minlight, censored) {
             (None, false) => (vec![[false; 3]; n], vec![[false; 3]; n]),
             (ml, _) => {
@@ -579,7 +580,7 @@ mod tests {
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .unwrap();
         // The solve alone does land above the entry here (else this test tests nothing).
-        fit.fit_linear_once();
+        fit.fit_linear_once(true);
         let e_solve = fit.eval().rel_error;
         assert!(e_solve > e_entry + 0.05, "the case is not hard: entry {e_entry}, solve {e_solve}");
         fit.model = entry.clone();

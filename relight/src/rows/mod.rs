@@ -227,6 +227,11 @@ impl Rows {
 
     /// The middle of row `i`'s interval in channel `c`.
     #[inline]
+    /// Whether some channel of some row is censored (a lower bound with weight below 1).
+    pub fn any_censored(&self) -> bool {
+        self.lower.iter().zip(&self.weight).any(|(l, w)| (0..3).any(|c| w[c] < 1.0 && l[c] > 0.0))
+    }
+
     pub fn mid(&self, i: usize, c: usize) -> f64 {
         0.5 * (self.lo[i][c] as f64 + self.hi[i][c] as f64)
     }
