@@ -414,3 +414,38 @@ fn a_real_map_charted_anew_keeps_its_density_never_bleeds_and_reads_back_exactly
     assert!((3.6..4.4).contains(&ratio), "half the texel size gives {ratio} times the texels");
     atlas_charts_never_share_a_filtered_texel(&fine_out.join("baked.glb"));
 }
+
+/// A compile that halved every byte after q3map2's clamp (`-compensate 2`: the q3map2
+/// fixture `compensate`, a light 40 units from a wall) stores nothing above 127; its own
+/// lights relit and baked back keep that clamp: the bright patch by the light is stored at
+/// 127 as in the original, never above.
+#[test]
+fn a_compensated_compile_bakes_back_under_its_own_clamp() {
+    let dir = tmp("compensate");
+    let fx = common::repo().join("tests/fixtures/q3map2");
+    let gltf = dir.join("compensate.glb");
+    let bsp = fx.join("maps/compensate.bsp");
+    let source = fx.join("maps/compensate.map");
+    run(&["convert", bsp.to_str().unwrap(), "--game-dir", common::baseoa().to_str().unwrap(), "--game-dir", fx.to_str().unwrap(), "--lights-from", source.to_str().unwrap(), "-o", gltf.to_str().unwrap(), "-q"]);
+    let relit = dir.join("compensate.relit.glb");
+    run(&["relight", gltf.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--init", "input", "--fit", "globals", "--backend", "cpu", "-q"]);
+    let out = dir.join("bake");
+    run(&["bake", relit.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "-q"]);
+    let b = read_json(&out.join("bake.json"));
+    let name = b["pages"][0]["name"].as_str().unwrap().to_string();
+    let top = |kind: &str| -> (u8, usize) {
+        let img = image::open(out.join(format!("{name}.{kind}.png"))).unwrap().to_rgb8();
+        let m: Vec<u8> = img.pixels().map(|p| p.0[0].max(p.0[1]).max(p.0[2])).collect();
+        let max = m.iter().copied().max().unwrap();
+        (max, m.iter().filter(|&&v| v == max).count())
+    };
+    let (orig, orig_n) = top("original");
+    let (relit_top, relit_n) = top("relit");
+    // Measured 2026-11-25: the original and the bake both stop at 127 (189 and 190
+    // texels there); before the data's clamp the fit missed by 0.41 and its bake stored
+    // 34 texels above 127, up to 255.
+    assert_eq!(orig, 127, "the fixture's data ({orig_n} texels at the top)");
+    assert_eq!(relit_top, 127, "the bake's top byte ({relit_n} texels there)");
+    assert!(relit_n * 10 >= orig_n * 8, "the clamped patch: {relit_n} texels at 127 baked, {orig_n} in the data");
+    assert!(b["rel_error"].as_f64().unwrap() < 0.01, "{b}");
+}

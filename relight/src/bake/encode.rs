@@ -38,12 +38,15 @@ pub fn exr(page: &Page, half: bool) -> Result<Vec<u8>> {
     Ok(out.into_inner())
 }
 
-/// `e` in the lightmap's 8-bit encoding for `overbright_bits` (hue kept above 255).
-pub fn lightmap_bytes(e: [f32; 3], overbright_bits: u32) -> [u8; 3] {
+/// `e` in the lightmap's 8-bit encoding for `overbright_bits`, its largest channel
+/// clamped at `top` keeping the hue: 255 as q3map2 stores it, or the data's own clamp
+/// (127.5 after `-compensate 2`: [`crate::scene::Material::stored_per_light_byte`]).
+pub fn lightmap_bytes(e: [f32; 3], overbright_bits: u32, top: f32) -> [u8; 3] {
+    let top = if top.is_finite() { top.clamp(1.0, 255.0) } else { 255.0 };
     let scale = 255.0 / (1u32 << overbright_bits.min(8)) as f32;
     let b = e.map(|v| if v.is_finite() { v.max(0.0) * scale } else { 0.0 });
-    let m = b.iter().copied().fold(255.0f32, f32::max);
-    b.map(|v| (v * 255.0 / m).floor().clamp(0.0, 255.0) as u8)
+    let m = b.iter().copied().fold(top, f32::max);
+    b.map(|v| (v * top / m).floor().clamp(0.0, 255.0) as u8)
 }
 
 fn png(w: u32, h: u32, rgb: Vec<u8>) -> Result<Vec<u8>> {
@@ -56,9 +59,10 @@ fn png(w: u32, h: u32, rgb: Vec<u8>) -> Result<Vec<u8>> {
 /// Grey for texels no row covers.
 const EMPTY: [u8; 3] = [40, 40, 40];
 
-/// Preview of a lightmap page in its 8-bit encoding (padding shown as stored).
-pub fn preview(page: &Page, overbright_bits: u32) -> Result<Vec<u8>> {
-    let rgb = page.rgb.iter().flat_map(|&e| lightmap_bytes(e, overbright_bits)).collect();
+/// Preview of a lightmap page in its 8-bit encoding, clamped at `top` (padding shown as
+/// stored).
+pub fn preview(page: &Page, overbright_bits: u32, top: f32) -> Result<Vec<u8>> {
+    let rgb = page.rgb.iter().flat_map(|&e| lightmap_bytes(e, overbright_bits, top)).collect();
     png(page.width, page.height, rgb)
 }
 
@@ -103,9 +107,12 @@ mod tests {
     #[test]
     fn lightmap_bytes_invert_the_decode_and_keep_hue_above_full() {
         // e = byte 2^2 / 255.
-        assert_eq!(lightmap_bytes([100.0 * 4.0 / 255.0, 0.0, 4.0], 2), [100, 0, 255]);
-        assert_eq!(lightmap_bytes([8.0, 4.0, -1.0], 2), [255, 127, 0]);
-        assert_eq!(lightmap_bytes([f32::NAN, f32::INFINITY, 1.0], 2), [0, 0, 63]);
+        assert_eq!(lightmap_bytes([100.0 * 4.0 / 255.0, 0.0, 4.0], 2, 255.0), [100, 0, 255]);
+        assert_eq!(lightmap_bytes([8.0, 4.0, -1.0], 2, 255.0), [255, 127, 0]);
+        // A compile that halved every byte after the clamp (`-compensate 2`) stops at 127.
+        assert_eq!(lightmap_bytes([100.0 * 4.0 / 255.0, 0.0, 1.0], 2, 127.5), [100, 0, 63]);
+        assert_eq!(lightmap_bytes([8.0, 4.0, -1.0], 2, 127.5), [127, 63, 0]);
+        assert_eq!(lightmap_bytes([f32::NAN, f32::INFINITY, 1.0], 2, 255.0), [0, 0, 63]);
     }
 
     #[test]

@@ -323,13 +323,13 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         let Some(m) = scene.materials.get(material) else { continue };
         let Some(k) = m.lightmap.and_then(|t| pages.iter().position(|p| p.texture == t)) else { continue };
         if page_png[k].is_none() {
-            page_png[k] = Some((encode::preview(&relit_pages[k], m.overbright_bits)?, m.overbright_bits));
+            page_png[k] = Some((encode::preview(&relit_pages[k], m.overbright_bits, 255.0 * m.stored_per_light_byte())?, m.overbright_bits));
         }
         let (png, ob) = page_png[k].as_ref().unwrap();
         baked.set_image(image, png, *ob);
     }
     for (k, p) in pages.iter().enumerate() {
-        let ob = scene.materials.iter().find(|m| m.lightmap == Some(p.texture)).map_or(2, |m| m.overbright_bits);
+        let (ob, top) = scene.materials.iter().find(|m| m.lightmap == Some(p.texture)).map_or((2, 255.0), |m| (m.overbright_bits, 255.0 * m.stored_per_light_byte()));
         let kinds: &[(&str, &Page)] = if p.new { &[("relit", &relit_pages[k])] } else { &[("relit", &relit_pages[k]), ("original", &original_pages[k]), ("residual", &residual_pages[k])] };
         for &(kind, pg) in kinds {
             add(&mut staged, format!("{}.{kind}.exr", p.name), encode::exr(pg, opts.half)?)?;
@@ -337,7 +337,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
                 let png = match (kind, &page_png[k]) {
                     ("residual", _) => encode::residual_preview(pg, residual_range as f32)?,
                     ("relit", Some((png, _))) => png.clone(),
-                    _ => encode::preview(pg, ob)?,
+                    _ => encode::preview(pg, ob, top)?,
                 };
                 add(&mut staged, format!("{}.{kind}.png", p.name), png)?;
             }
