@@ -140,8 +140,6 @@ pub struct DataClamp {
     pub byte: u8,
     /// Lightmap texels and vertex colours whose largest channel is at the clamp.
     pub at_clamp: usize,
-    /// Lit texels and colours counted (largest channel above 0).
-    pub lit: usize,
 }
 
 /// The byte at which the compile clamped the data, when it is below q3map2's 255.
@@ -186,7 +184,7 @@ pub fn find_clamp(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> 
         return None;
     }
     let byte = [top, top - 1].into_iter().find(|&b| spike(b as usize))?;
-    Some(DataClamp { byte, at_clamp: hist[byte as usize..].iter().sum(), lit })
+    Some(DataClamp { byte, at_clamp: hist[byte as usize..].iter().sum() })
 }
 
 /// A material that emits light in q3map2's compile: `q3map_surfacelight` (from the
