@@ -278,6 +278,15 @@ impl Fitter<'_> {
         // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
         // column order; the gathered column is in radiance already. Light columns run
         // over the rows their light reaches (`for_each_visible`), the rest row by row.
+        // Each surface group's column (usize::MAX: off), and the first of those columns
+        // (they are consecutive, in group order).
+        let mut surface_col = vec![usize::MAX; m.surfaces.len()];
+        cols.iter().enumerate().for_each(|(c, col)| {
+            if let Col::Surface(s) = *col {
+                surface_col[s] = c;
+            }
+        });
+        let first_surface_col = cols.iter().position(|col| matches!(col, Col::Surface(_)));
         let unit_direct = |block: std::ops::Range<usize>, out: &mut Vec<Vec<(usize, f64)>>| {
             out.resize_with(block.len(), Vec::new);
             out.iter_mut().for_each(Vec::clear);
@@ -304,7 +313,36 @@ impl Fitter<'_> {
                             block.clone().for_each(|i| put(i, b.d[i] as f64));
                         }
                     }
-                    Col::Surface(s) => block.clone().for_each(|i| put(i, bases.surfaces.row(i).iter().filter(|e| e.0 as usize == s).map(|e| e.1 as f64).sum())),
+                    // Every surface column at its first one: one pass over each row's
+                    // entries (a pass per column was most of a refit's time on
+                    // oacmpdm3's 30-odd groups), each group's entries summed in the
+                    // row's order, pushed in column order.
+                    Col::Surface(_) if Some(c) == first_surface_col => {
+                        for i in block.clone() {
+                            let v = &mut out[i - base];
+                            let start = v.len();
+                            for &(g, b) in bases.surfaces.row(i) {
+                                let q = surface_col.get(g as usize).copied().unwrap_or(usize::MAX);
+                                if q == usize::MAX {
+                                    continue;
+                                }
+                                match v[start..].iter_mut().find(|e| e.0 == q) {
+                                    Some(e) => e.1 += b as f64,
+                                    None => v.push((q, b as f64)),
+                                }
+                            }
+                            v[start..].sort_unstable_by_key(|e| e.0);
+                            let mut keep = start;
+                            for r in start..v.len() {
+                                if v[r].1 != 0.0 {
+                                    v[keep] = v[r];
+                                    keep += 1;
+                                }
+                            }
+                            v.truncate(keep);
+                        }
+                    }
+                    Col::Surface(_) => {}
                     Col::Ambient | Col::Gathered => {}
                 }
             }
@@ -338,7 +376,7 @@ impl Fitter<'_> {
         // tens of MB to clear and add, and worker threads mapped and unmapped it at every
         // fit); the blocks are then added into the whole matrix in block order, so the
         // sums do not depend on how the blocks were spread over threads.
-        let chunk = 8192;
+        let chunk = crate::rows::block_rows(n);
         let parts: Vec<BlockGram> = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|ci| {

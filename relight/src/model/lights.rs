@@ -206,17 +206,15 @@ pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
     g
 }
 
-/// Rows per block of the CPU loops below (a multiple of 32: whole visibility words).
-const BLOCK_ROWS: usize = 4096;
-
 /// Irradiance of every light at every row, W/m^2 per channel (CPU backend). Each block
 /// of rows runs light by light over the rows the light reaches
 /// ([`Visibility::for_each_visible`]), so a light that reaches few rows costs little;
 /// each row still sums its lights in their order, in f64.
 pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
     let mut out = vec![[0.0f32; 3]; rows.len()];
-    out.par_chunks_mut(BLOCK_ROWS).enumerate().for_each(|(bi, block)| {
-        let base = bi * BLOCK_ROWS;
+    let block_rows = crate::rows::block_rows(rows.len());
+    out.par_chunks_mut(block_rows).enumerate().for_each(|(bi, block)| {
+        let base = bi * block_rows;
         let mut e = vec![[0.0f64; 3]; block.len()];
         for (j, l) in lights.iter().enumerate() {
             vis.for_each_visible(j, base..base + block.len(), |i| {
@@ -263,7 +261,7 @@ impl LightGrad {
 /// f64 sums).
 pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Vec<LightGrad> {
     let k = lights.len();
-    let chunk = BLOCK_ROWS;
+    let chunk = crate::rows::block_rows(rows.len());
     (0..rows.len().div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
@@ -295,15 +293,15 @@ pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]
             }
             g
         })
-        .reduce(
-            || vec![LightGrad::default(); k],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(&b) {
-                    x.add(y);
-                }
-                a
-            },
-        )
+        .collect::<Vec<_>>()
+        .into_iter()
+        // Added in block order: the sums do not depend on how rayon split the blocks.
+        .fold(vec![LightGrad::default(); k], |mut a, b| {
+            for (x, y) in a.iter_mut().zip(&b) {
+                x.add(y);
+            }
+            a
+        })
 }
 
 #[cfg(test)]
@@ -340,7 +338,7 @@ mod tests {
     fn light_by_light_loops_equal_the_row_by_row_reference() {
         let (_, rows) = crate::testutil::room(40);
         let n = rows.len();
-        assert!(n > 2 * BLOCK_ROWS && n % 32 != 0, "{n} rows: several blocks, a partial word");
+        assert!(n > 2 * crate::rows::block_rows(n) && n % 32 != 0, "{n} rows: several blocks, a partial word");
         let lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [1.0 + j as f32, 2.0, 0.5])).collect();
         let vis = patterned_visibility(n, lights.len());
         let reference: Vec<[f32; 3]> = (0..n)
@@ -386,6 +384,26 @@ mod tests {
                 assert!((got[j].rgb[q] - want.rgb[q]).abs() <= 1e-12 * size.rgb[q], "light {j} rgb {q}: {:?} vs {want:?}", got[j]);
                 assert!((got[j].pos[q] - want.pos[q]).abs() <= 1e-12 * size.pos[q], "light {j} pos {q}: {:?} vs {want:?}", got[j]);
             }
+        }
+    }
+
+    /// The CPU kernels give the same bits on one thread as on several: each block's sums
+    /// and the order the blocks are added in depend on the row count alone
+    /// ([`crate::rows::block_rows`]), not on how rayon spread the blocks.
+    #[test]
+    fn the_kernels_do_not_depend_on_the_thread_count() {
+        let (_, rows) = crate::testutil::room(40);
+        let n = rows.len();
+        let lights: Vec<Light> = (0..5).map(|j| Light::point(Vec3::new(0.6 + 0.5 * j as f32, 1.1, 0.4 + 0.3 * j as f32), [1.0, 2.0 + j as f32, 0.5])).collect();
+        let vis = patterned_visibility(n, lights.len());
+        let rho: Vec<[f32; 3]> = (0..n).map(|i| [0.3 + (i % 13) as f32 * 0.01, -0.2, (i % 7) as f32 * 0.1]).collect();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+            pool.install(|| (irradiance(&rows, &vis, &lights), gradient(&rows, &vis, &lights, &rho)))
+        };
+        let one = on(1);
+        for threads in [2, 3, 8] {
+            assert_eq!(on(threads), one, "{threads} threads");
         }
     }
 

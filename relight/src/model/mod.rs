@@ -294,7 +294,7 @@ fn evaluate_as(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, back
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
     // Residuals: rho_x and the objective.
-    let chunk = 8192;
+    let chunk = crate::rows::block_rows(n);
     let parts: Vec<(f64, f64, Vec<[f64; 3]>)> = (0..n.div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {

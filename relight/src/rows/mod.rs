@@ -32,6 +32,16 @@ pub mod projection;
 
 use glam::Vec3;
 
+/// Rows per block of the CPU's parallel loops over rows (the lights' kernels, the
+/// residuals, the linear fit's Gram blocks): a multiple of 32 (whole visibility words),
+/// about 64 blocks (a placement's 20 000-row subsample was 3 to 5 blocks of 4096 or
+/// 8192, so 16 cores ran it on 3 to 5 threads), between 512 and 4096 rows. A function of
+/// the row count alone: a block's sums, and the order blocks are added in, do not depend
+/// on the number of threads.
+pub fn block_rows(n: usize) -> usize {
+    (n / 64).next_multiple_of(32).clamp(512, 4096)
+}
+
 /// How the baked data was sampled: the rules the model and the shadow rays follow to
 /// compare like with like (see [`crate::scene::q3map2`] for q3map2's values).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -290,6 +300,17 @@ pub fn residual(x: f64, lo: f64, hi: f64, w: f64, lower: f64, area: f64) -> (f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Blocks are whole visibility words, a placement's subsample splits into tens of
+    /// them, and a map's rows into blocks of at most 4096.
+    #[test]
+    fn blocks_are_whole_words_and_enough_for_many_cores() {
+        for n in [0, 1, 31, 700, 20_000, 143_339, 600_000, 5_000_000] {
+            let b = block_rows(n);
+            assert!(b % 32 == 0 && (512..=4096).contains(&b), "{n} rows: blocks of {b}");
+        }
+        assert!(20_000usize.div_ceil(block_rows(20_000)) >= 32, "a placement subsample in {} blocks", 20_000usize.div_ceil(block_rows(20_000)));
+    }
 
     #[test]
     fn residual_is_zero_inside_the_interval_and_quadratic_outside() {
