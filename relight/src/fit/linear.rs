@@ -275,9 +275,6 @@ impl Fitter<'_> {
         let dirt = if m.dirt { bases.dirt.as_deref() } else { None };
         let nonlocal = (m.filter && bases.filter.is_some()) || (m.bounce.is_some() && bases.bounce.is_some());
         let dense = nonlocal && cols.len() <= DENSE_COLUMNS;
-        // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
-        // column order; the gathered column is in radiance already. Light columns run
-        // over the rows their light reaches (`for_each_visible`), the rest row by row.
         // Each surface group's column (usize::MAX: off), and the first of those columns
         // (they are consecutive, in group order).
         let mut surface_col = vec![usize::MAX; m.surfaces.len()];
@@ -287,6 +284,9 @@ impl Fitter<'_> {
             }
         });
         let first_surface_col = cols.iter().position(|col| matches!(col, Col::Surface(_)));
+        // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
+        // column order; the gathered column is in radiance already. Light columns run
+        // over the rows their light reaches (`for_each_visible`), the rest row by row.
         let unit_direct = |block: std::ops::Range<usize>, out: &mut Vec<Vec<(usize, f64)>>| {
             out.resize_with(block.len(), Vec::new);
             out.iter_mut().for_each(Vec::clear);
@@ -314,9 +314,10 @@ impl Fitter<'_> {
                         }
                     }
                     // Every surface column at its first one: one pass over each row's
-                    // entries (a pass per column was most of a refit's time on
-                    // oacmpdm3's 30-odd groups), each group's entries summed in the
-                    // row's order, pushed in column order.
+                    // entries (one per emitting patch that reaches the row; a pass per
+                    // group over all of them was the largest item of oacmpdm3's source
+                    // refit in a perf profile), each group's entries summed in the row's
+                    // order, pushed in column order.
                     Col::Surface(_) if Some(c) == first_surface_col => {
                         for i in block.clone() {
                             let v = &mut out[i - base];
@@ -342,8 +343,7 @@ impl Fitter<'_> {
                             v.truncate(keep);
                         }
                     }
-                    Col::Surface(_) => {}
-                    Col::Ambient | Col::Gathered => {}
+                    Col::Surface(_) | Col::Ambient | Col::Gathered => {}
                 }
             }
         };
