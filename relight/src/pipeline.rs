@@ -487,10 +487,14 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
     };
     let bounces = c.switch("-bounce").and_then(|v| v.parse::<usize>().ok()).unwrap_or(DEFAULT_BOUNCES).min(64);
     let sky_surfaces = scene.materials.iter().any(|m| m.sky);
+    // A kind of emitter the recorded compile scaled to nothing (`-skyscale 0`,
+    // `-areascale 0`) lit nothing in the data.
+    let zero = |long: &str, short: &str| [long, short].iter().any(|s| c.switch(s).and_then(|v| v.parse::<f32>().ok()) == Some(0.0));
+    let (no_sky, no_area) = (zero("-skyscale", "-sky"), zero("-areascale", "-area"));
     let p = TermPlan {
-        sun: if !sky_surfaces && scene.suns.is_empty() && opts.sun == Optional::Auto { Optional::Off } else { opts.sun },
-        sky: if !scene.materials.iter().any(|m| !m.sky_lights.is_empty()) && opts.sky == Optional::Auto { Optional::Off } else { opts.sky },
-        surfaces: if !scene.materials.iter().any(|m| m.emitter.is_some()) { Optional::Off } else { opts.surfaces },
+        sun: if (!sky_surfaces && scene.suns.is_empty() || no_sky) && opts.sun == Optional::Auto { Optional::Off } else { opts.sun },
+        sky: if (!scene.materials.iter().any(|m| !m.sky_lights.is_empty()) || no_sky) && opts.sky == Optional::Auto { Optional::Off } else { opts.sky },
+        surfaces: if !scene.materials.iter().any(|m| m.emitter.is_some()) || (no_area && opts.surfaces == Optional::Auto) { Optional::Off } else { opts.surfaces },
         bounce: from_record(opts.bounce, c.has("-bounce")),
         bounces,
         // q3map2's switch is `-dirty`; `-dirt`, which many OpenArena maps record, is not one
@@ -1288,6 +1292,39 @@ mod tests {
         assert!(!super::sun_turned(a, a));
         let turned = glam::Quat::from_rotation_x(0.2f32.to_radians()) * a;
         assert!(super::sun_turned(a, turned));
+    }
+
+    /// A recorded `-areascale 0` / `-skyscale 0` (as in a point-lights-only compile) keeps the
+    /// surface lights, the sky light and the sun out of the model; asked for, they stay in.
+    #[test]
+    fn emitters_the_compile_scaled_to_nothing_stay_out() {
+        use super::{plan_terms, Optional, Options};
+        use crate::scene::{Compile, Emitter, Lighting, Material, Scene};
+        let mat = |name: &str, emitter: Option<Emitter>, sky_lights: Vec<(f32, u32, [f32; 3])>| Material { name: name.into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: !sky_lights.is_empty(), double_sided: false, casts_shadow: true, emitter, sky_lights, emission: [0.0; 3] };
+        let panel = Emitter { value: 1000.0, color: [1.0; 3], subdivide: 999.0, backsplash: (0.05, 23.0) };
+        let scene = |cmdline: Option<&str>| Scene {
+            mesh: Default::default(),
+            materials: vec![mat("panel", Some(panel.clone()), Vec::new()), mat("sky", None, vec![(60.0, 4, [1.0; 3])])],
+            textures: Vec::new(),
+            lights: Vec::new(),
+            suns: Vec::new(),
+            origin: glam::DVec3::ZERO,
+            skipped: Vec::new(),
+            units_m: 0.0254,
+            compile: Compile { cmdline: cmdline.map(String::from), ..Default::default() },
+            relit: None,
+            solids: None,
+        };
+        let opts = Options::default();
+        let (p, _) = plan_terms(&opts, &scene(Some("-bsp -meta; -light -fast -patchshadows -areascale 0 -skyscale 0")));
+        assert_eq!((p.surfaces, p.sky, p.sun), (Optional::Off, Optional::Off, Optional::Off));
+        let (p, _) = plan_terms(&opts, &scene(Some("-bsp -meta; -light -fast -area 0.5 -sky 0")));
+        assert_eq!((p.surfaces, p.sky), (Optional::Auto, Optional::Off));
+        let (p, _) = plan_terms(&opts, &scene(None));
+        assert_eq!((p.surfaces, p.sky, p.sun), (Optional::Auto, Optional::Auto, Optional::Auto));
+        let asked = Options { surfaces: Optional::On, sky: Optional::On, ..Options::default() };
+        let (p, _) = plan_terms(&asked, &scene(Some("-light -areascale 0 -skyscale 0")));
+        assert_eq!((p.surfaces, p.sky), (Optional::On, Optional::On));
     }
 
     use super::light_names;

@@ -10,6 +10,10 @@
 //! units for the form factor; samples behind the plane, and coplanar ones facing the same
 //! way, get nothing. A backsplash copy of each patch, `backsplash distance` in front of it
 //! and facing back, adds `7 x fraction` as much (default 5% at 23 units; none for sky).
+//! A two-sided shader (`cull none`/`disable`/`twosided`, e.g. the flames of torches) emits
+//! from both faces: samples behind its plane count, a negative form factor counts as its
+//! opposite, and its shadow ray then goes to a point 1 unit behind the patch (its
+//! backsplash copy stays one-sided).
 //!
 //! A Lambertian emitter of radiance `L` [W/(m^2 sr)] gives `E = pi L F`; q3map2's value
 //! `V` is `L = 0.75 V e_per_byte` ([`q3gltf_convert::units::q3map2_surface_radiance`]).
@@ -69,6 +73,8 @@ pub struct Patch {
     pub weight: f32,
     /// Area, m^2 (for the distance cull).
     pub area: f32,
+    /// Emits from both faces (a two-sided shader; never a backsplash copy).
+    pub two_sided: bool,
 }
 
 /// q3map2's point-to-polygon form factor (`PointToPolygonFormFactor`): the signed
@@ -208,9 +214,10 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
                 let off = normal * (dist * u);
                 let verts: Vec<Vec3> = piece.iter().rev().map(|p| *p + off).collect();
                 let o = origin + off;
-                out.push(Patch { group: g, verts, origin: o, normal: -normal, dist: (-normal).dot(o), weight: 7.0 * frac, area });
+                out.push(Patch { group: g, verts, origin: o, normal: -normal, dist: (-normal).dot(o), weight: 7.0 * frac, area, two_sided: false });
             }
-            out.push(Patch { group: g, dist: normal.dot(origin), verts: piece, origin, normal, weight: 1.0, area });
+            let two_sided = scene.materials[m].double_sided;
+            out.push(Patch { group: g, dist: normal.dot(origin), verts: piece, origin, normal, weight: 1.0, area, two_sided });
         }
     }
     (groups, out)
@@ -258,7 +265,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                 // compare in units, with a little slack for the rounding of meters.
                 let d = p.normal.dot(x) - p.dist;
                 let du = d / u;
-                if du < 3.0 - 1e-3 && (du < -1.0 - 1e-3 || (du > -3.0 + 1e-3 && n.dot(p.normal) > 0.9)) {
+                if du < 3.0 - 1e-3 && ((!p.two_sided && du < -1.0 - 1e-3) || (du > -3.0 + 1e-3 && n.dot(p.normal) > 0.9)) {
                     continue;
                 }
                 // Upper bound of the form factor from the distance to the origin.
@@ -267,7 +274,13 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 let pushed = if d > -push && d < push { x + p.normal * (push - d) } else { x };
-                let ff = form_factor(pushed, n, &p.verts);
+                let mut ff = form_factor(pushed, n, &p.verts);
+                // Seen from behind, a two-sided patch lights from its far side.
+                let mut target = p.origin;
+                if ff < 0.0 && p.two_sided {
+                    ff = -ff;
+                    target = p.origin - p.normal * (2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
+                }
                 if !(ff > 0.0) {
                     continue;
                 }
@@ -275,7 +288,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 rays += 1;
-                if !crate::trace::visibility::visible_after(bvh, x, n, p.origin, s, &mut last) {
+                if !crate::trace::visibility::visible_after(bvh, x, n, target, s, &mut last) {
                     continue;
                 }
                 let v = std::f32::consts::PI * ff * p.weight;
@@ -385,6 +398,66 @@ mod tests {
             let ff = form_factor(Vec3::ZERO, Vec3::Y, &verts) as f64;
             let inner = disc(r * (std::f64::consts::PI / n as f64).cos());
             assert!(inner - 1e-5 < ff && ff < disc(r) + 1e-5, "{n} corners: {ff} not within [{inner}, {}]", disc(r));
+        }
+    }
+
+    /// A two-sided emitter (`cull none`) standing in the middle of a room lights the wall
+    /// behind it as the wall in front (the room is symmetric about it); a one-sided one
+    /// lights the wall behind it not at all.
+    #[test]
+    fn a_two_sided_emitter_lights_both_sides_alike() {
+        use crate::scene::{Emitter, Lighting, Material};
+        let (mut mesh, rows) = crate::testutil::room(6);
+        // A 1 m square in the plane x = 2 (the room spans x in [0, 4]), facing +x.
+        let (y0, y1, z0, z1) = (0.75f32, 1.75f32, 1.0f32, 2.0f32);
+        let base = mesh.positions.len() as u32;
+        for p in [Vec3::new(2.0, y0, z0), Vec3::new(2.0, y1, z0), Vec3::new(2.0, y1, z1), Vec3::new(2.0, y0, z1)] {
+            mesh.positions.push(p);
+            mesh.normals.push(Vec3::X);
+            mesh.uv0.push(glam::Vec2::ZERO);
+            mesh.uv1.push(glam::Vec2::ZERO);
+            mesh.colors.push([1.0; 3]);
+            mesh.v_material.push(1);
+        }
+        mesh.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+        let n = mesh.triangles.len() as u32;
+        mesh.tri_source.extend([n - 2, n - 1]);
+        mesh.tri_material.extend([1, 1]);
+        mesh.reweld();
+        let mat = |name: &str, emitter: Option<Emitter>, double_sided: bool| Material { name: name.into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided, casts_shadow: true, emitter, sky_lights: Vec::new(), emission: [0.0; 3] };
+        let flame = Emitter { value: 2000.0, color: [1.0, 0.6, 0.3], subdivide: 16.0, backsplash: (0.0, 23.0) };
+        let basis_with = |double_sided: bool| {
+            let scene = crate::scene::Scene {
+                mesh: mesh.clone(),
+                materials: vec![mat("wall", None, false), mat("flame", Some(flame.clone()), double_sided)],
+                textures: Vec::new(),
+                lights: Vec::new(),
+                suns: Vec::new(),
+                origin: glam::DVec3::ZERO,
+                skipped: Vec::new(),
+                units_m: 0.0254,
+                compile: Default::default(),
+                relit: None,
+                solids: None,
+            };
+            let bvh = Bvh::build(&scene.mesh);
+            let b = basis(&scene, &rows, &bvh, false);
+            (0..rows.len()).map(|i| b.row(i).iter().map(|e| e.1 as f64).sum::<f64>()).collect::<Vec<f64>>()
+        };
+        // The walls x = 0 (behind the emitter) and x = 4 (in front), row by row.
+        let rows_ref = &rows;
+        let wall = |x: f32| (0..rows_ref.len()).filter(move |&i| (rows_ref.pos[i].x - x).abs() < 1e-5 && rows_ref.normal[i].x.abs() > 0.9);
+        let pairs: Vec<(usize, usize)> = wall(0.0)
+            .filter_map(|i| wall(4.0).find(|&k| (rows.pos[k].y - rows.pos[i].y).abs() < 1e-5 && (rows.pos[k].z - rows.pos[i].z).abs() < 1e-5).map(|k| (i, k)))
+            .collect();
+        assert!(pairs.len() >= 25, "{} pairs", pairs.len());
+        let (one, two) = (basis_with(false), basis_with(true));
+        let lit = pairs.iter().filter(|&&(_, front)| one[front] > 1e-4).count();
+        assert!(lit >= 25, "the emitter lights {lit} rows of the wall in front");
+        for &(behind, front) in &pairs {
+            assert_eq!(one[behind], 0.0, "one-sided: the wall behind is dark");
+            assert!((two[front] - one[front]).abs() <= 1e-6 * one[front].max(1e-3), "the front is the same either way");
+            assert!((two[behind] - two[front]).abs() <= 2e-3 * two[front].max(1e-3), "behind {} vs front {}", two[behind], two[front]);
         }
     }
 
