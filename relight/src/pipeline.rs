@@ -1299,21 +1299,13 @@ mod tests {
     #[test]
     fn emitters_the_compile_scaled_to_nothing_stay_out() {
         use super::{plan_terms, Optional, Options};
-        use crate::scene::{Compile, Emitter, Lighting, Material, Scene};
-        let mat = |name: &str, emitter: Option<Emitter>, sky_lights: Vec<(f32, u32, [f32; 3])>| Material { name: name.into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: !sky_lights.is_empty(), double_sided: false, casts_shadow: true, emitter, sky_lights, emission: [0.0; 3] };
-        let panel = Emitter { value: 1000.0, color: [1.0; 3], subdivide: 999.0, backsplash: (0.05, 23.0) };
-        let scene = |cmdline: Option<&str>| Scene {
-            mesh: Default::default(),
-            materials: vec![mat("panel", Some(panel.clone()), Vec::new()), mat("sky", None, vec![(60.0, 4, [1.0; 3])])],
-            textures: Vec::new(),
-            lights: Vec::new(),
-            suns: Vec::new(),
-            origin: glam::DVec3::ZERO,
-            skipped: Vec::new(),
-            units_m: 0.0254,
-            compile: Compile { cmdline: cmdline.map(String::from), ..Default::default() },
-            relit: None,
-            solids: None,
+        use crate::scene::{Compile, Emitter, Material};
+        let panel = Material { emitter: Some(Emitter { value: 1000.0, color: [1.0; 3], subdivide: 999.0, backsplash: (0.05, 23.0) }), ..crate::testutil::material("panel") };
+        let sky = Material { sky: true, sky_lights: vec![(60.0, 4, [1.0; 3])], ..crate::testutil::material("sky") };
+        let scene = |cmdline: Option<&str>| {
+            let mut s = crate::testutil::scene(Default::default(), vec![panel.clone(), sky.clone()]);
+            s.compile = Compile { cmdline: cmdline.map(String::from), ..Default::default() };
+            s
         };
         let opts = Options::default();
         let (p, _) = plan_terms(&opts, &scene(Some("-bsp -meta; -light -fast -patchshadows -areascale 0 -skyscale 0")));

@@ -82,6 +82,27 @@ pub struct Material {
 }
 
 impl Material {
+    /// A white, one-sided material lit as `lighting`, without lightmap or emission, casting
+    /// shadows: what the other fields are where nothing says otherwise.
+    pub fn plain(name: &str, lighting: Lighting, overbright_bits: u32) -> Self {
+        Material {
+            name: name.into(),
+            albedo: None,
+            albedo_factor: [1.0; 4],
+            lighting,
+            lightmap: None,
+            overbright_bits,
+            lightmap_gamma: 1.0,
+            censor_byte: CENSOR_BYTE,
+            sky: false,
+            double_sided: false,
+            casts_shadow: true,
+            emitter: None,
+            sky_lights: Vec::new(),
+            emission: [0.0; 3],
+        }
+    }
+
     /// Linear value `e` (irradiance / pi, 1 = texture at full brightness) of a stored
     /// value `v = byte / 255` read back from filtered data (bilinear lookups, the gather):
     /// the middle of the byte's interval (see [`Material::interval`]).

@@ -83,3 +83,26 @@ pub fn room(n: usize) -> (Mesh, Rows) {
     rows.finish();
     (m, rows)
 }
+
+/// A lightmapped material (no texture, overbright 2) for tests of the model's terms.
+pub fn material(name: &str) -> crate::scene::Material {
+    crate::scene::Material { lightmap: Some(0), ..crate::scene::Material::plain(name, crate::scene::Lighting::Lightmap, 2) }
+}
+
+/// A scene of `mesh` and `materials` in Quake units (0.0254 m), at the origin, with nothing
+/// else.
+pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene::Scene {
+    crate::scene::Scene {
+        mesh,
+        materials,
+        textures: Vec::new(),
+        lights: Vec::new(),
+        suns: Vec::new(),
+        origin: glam::DVec3::ZERO,
+        skipped: Vec::new(),
+        units_m: 0.0254,
+        compile: Default::default(),
+        relit: None,
+        solids: None,
+    }
+}

@@ -413,22 +413,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         });
     }
     let default_material = materials.len();
-    materials.push(Material {
-        name: "(default)".into(),
-        albedo: None,
-        albedo_factor: [1.0; 4],
-        lighting: Lighting::None,
-        lightmap: None,
-        overbright_bits: scene_ob.unwrap_or(DEFAULT_OVERBRIGHT_BITS),
-        lightmap_gamma: 1.0,
-        censor_byte: CENSOR_BYTE,
-        sky: false,
-        double_sided: false,
-        casts_shadow: true,
-        emitter: None,
-        sky_lights: Vec::new(),
-        emission: [0.0; 3],
-    });
+    materials.push(Material::plain("(default)", Lighting::None, scene_ob.unwrap_or(DEFAULT_OVERBRIGHT_BITS)));
 
     let mut mesh = Mesh::default();
     let mut lights = Vec::new();

@@ -406,7 +406,7 @@ mod tests {
     /// lights the wall behind it not at all.
     #[test]
     fn a_two_sided_emitter_lights_both_sides_alike() {
-        use crate::scene::{Emitter, Lighting, Material};
+        use crate::scene::{Emitter, Material};
         let (mut mesh, rows) = crate::testutil::room(6);
         // A 1 m square in the plane x = 2 (the room spans x in [0, 4]), facing +x.
         let (y0, y1, z0, z1) = (0.75f32, 1.75f32, 1.0f32, 2.0f32);
@@ -424,22 +424,10 @@ mod tests {
         mesh.tri_source.extend([n - 2, n - 1]);
         mesh.tri_material.extend([1, 1]);
         mesh.reweld();
-        let mat = |name: &str, emitter: Option<Emitter>, double_sided: bool| Material { name: name.into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided, casts_shadow: true, emitter, sky_lights: Vec::new(), emission: [0.0; 3] };
         let flame = Emitter { value: 2000.0, color: [1.0, 0.6, 0.3], subdivide: 16.0, backsplash: (0.0, 23.0) };
         let basis_with = |double_sided: bool| {
-            let scene = crate::scene::Scene {
-                mesh: mesh.clone(),
-                materials: vec![mat("wall", None, false), mat("flame", Some(flame.clone()), double_sided)],
-                textures: Vec::new(),
-                lights: Vec::new(),
-                suns: Vec::new(),
-                origin: glam::DVec3::ZERO,
-                skipped: Vec::new(),
-                units_m: 0.0254,
-                compile: Default::default(),
-                relit: None,
-                solids: None,
-            };
+            let emitting = Material { emitter: Some(flame.clone()), double_sided, ..crate::testutil::material("flame") };
+            let scene = crate::testutil::scene(mesh.clone(), vec![crate::testutil::material("wall"), emitting]);
             let bvh = Bvh::build(&scene.mesh);
             let b = basis(&scene, &rows, &bvh, false);
             (0..rows.len()).map(|i| b.row(i).iter().map(|e| e.1 as f64).sum::<f64>()).collect::<Vec<f64>>()
