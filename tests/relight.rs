@@ -640,6 +640,55 @@ fn probe_reports_the_irradiance_of_the_files_lights() {
     assert!(String::from_utf8_lossy(&st.stderr).contains("--at"));
 }
 
+/// `q3gltf probe` on an emissive square (1 m, radiance 2 W/(m^2 sr), 1 m above the point):
+/// `E = pi L F` with the analytic form factor of the square; seen from behind (1 m above
+/// it, facing it) a one-sided material adds nothing and a double-sided one the same as in
+/// front, as relight's surface lights and Cycles do.
+#[test]
+fn probe_sees_a_double_sided_emitter_from_behind() {
+    let dir = tmp("probe_emitter");
+    let pos: [[f32; 3]; 4] = [[-0.5, 1.0, -0.5], [0.5, 1.0, -0.5], [0.5, 1.0, 0.5], [-0.5, 1.0, 0.5]];
+    let mut buf: Vec<u8> = pos.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let npos = buf.len();
+    buf.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    std::fs::write(dir.join("panel.bin"), &buf).unwrap();
+    // Analytic form factor of a rectangle seen from below its corner, summed over four.
+    let corner = |a: f64, b: f64, h: f64| {
+        let (x, y) = (a / h, b / h);
+        let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
+        (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI)
+    };
+    let want = std::f64::consts::PI * 2.0 * 4.0 * corner(0.5, 0.5, 1.0);
+    for double_sided in [false, true] {
+        let doc = serde_json::json!({
+            "asset": { "version": "2.0" },
+            "extensionsUsed": ["KHR_materials_emissive_strength"],
+            "buffers": [{ "byteLength": buf.len(), "uri": "panel.bin" }],
+            "bufferViews": [{ "buffer": 0, "byteOffset": 0, "byteLength": npos }, { "buffer": 0, "byteOffset": npos, "byteLength": 12 }],
+            "accessors": [
+                { "bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-0.5, 1.0, -0.5], "max": [0.5, 1.0, 0.5] },
+                { "bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR" }
+            ],
+            "materials": [{ "name": "panel", "emissiveFactor": [1.0, 1.0, 1.0], "doubleSided": double_sided, "extensions": { "KHR_materials_emissive_strength": { "emissiveStrength": 2.0 } } }],
+            "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0 }, "indices": 1, "material": 0 }] }],
+            "nodes": [{ "mesh": 0 }],
+            "scenes": [{ "nodes": [0] }],
+            "scene": 0
+        });
+        let file = dir.join(format!("panel_{double_sided}.gltf"));
+        std::fs::write(&file, serde_json::to_vec(&doc).unwrap()).unwrap();
+        let probe = |at: &str, n: &str| -> f64 {
+            let r: Value = serde_json::from_str(&run(&["probe", file.to_str().unwrap(), "--at", at, "--normal", n])).unwrap();
+            r["irradiance"][1].as_f64().unwrap()
+        };
+        let front = probe("0,0,0", "0,1,0");
+        assert!((front - want).abs() < 1e-3 * want, "in front: {front} vs {want}");
+        let behind = probe("0,2,0", "0,-1,0");
+        let expected = if double_sided { want } else { 0.0 };
+        assert!((behind - expected).abs() < 1e-3 * want, "double-sided {double_sided}, behind: {behind} vs {expected}");
+    }
+}
+
 /// Synthetic ground truth with a sun shining through sky walls: the sun comes back (its
 /// direction within 1 degree, its illuminance within 2%), written as a KHR directional
 /// light, with the three point lights (1% / 2%) and the error below 1%. Without a sun in

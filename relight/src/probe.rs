@@ -13,7 +13,8 @@
 //! - a directional light (lux -> `S = lux / 683` W/m^2) adds `S max(0, n.w)` where a ray
 //!   towards it escapes;
 //! - an emissive material of radiance `L` (`emissiveFactor x emissiveStrength`) adds
-//!   `pi L F` per triangle, `F` its form factor seen from `x` (unoccluded).
+//!   `pi L F` per triangle, `F` its form factor seen from `x` (unoccluded; seen from
+//!   behind, only a double-sided material's triangle adds, `pi L |F|`).
 //!
 //! A white Lambertian surface there has radiance `E / pi` [W/(m^2 sr)].
 
@@ -101,14 +102,17 @@ pub fn probe(input: &std::path::Path, point: DVec3, normal: DVec3) -> Result<Pro
     let mut em = [0.0f64; 3];
     let mut tris = 0;
     for (t, tri) in scene.mesh.triangles.iter().enumerate() {
-        let l = scene.materials[scene.mesh.tri_material[t] as usize].emission;
+        let mat = &scene.materials[scene.mesh.tri_material[t] as usize];
+        let l = mat.emission;
         if l == [0.0; 3] {
             continue;
         }
         tris += 1;
-        // Quake winding (the form factor's convention): each glTF triangle reversed.
+        // Quake winding (the form factor's convention): each glTF triangle reversed. A
+        // double-sided material emits from its back as well (as relight's surface lights).
         let w = [tri[2], tri[1], tri[0]].map(|v| scene.mesh.positions[v as usize]);
-        let f = crate::model::surface::form_factor(x, n, &w).max(0.0) as f64;
+        let f = crate::model::surface::form_factor(x, n, &w);
+        let f = if mat.double_sided { f.abs() } else { f.max(0.0) } as f64;
         for c in 0..3 {
             em[c] += std::f64::consts::PI * l[c] as f64 * f;
         }
