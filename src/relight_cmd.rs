@@ -345,6 +345,10 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     let on: Vec<String> = rep.surfaces.iter().filter_map(|s| s.radiance.map(|r| format!("{} {:.3}", s.shader, r.iter().copied().fold(0.0f32, f32::max)))).collect();
     if !rep.surfaces.is_empty() {
         println!("  surfaces  {} of {} emitting shaders kept{}{}", on.len(), rep.surfaces.len(), if on.is_empty() { "" } else { ": " }, on.join(", "));
+        let (meshes, unmatched) = rep.surfaces.iter().fold((0, 0), |(a, b), s| (a + s.q3map2_meshes, b + s.meshes_unmatched));
+        if meshes + unmatched > 0 {
+            println!("  patches   {meshes} emitting patches from q3map2's own mesh of them{}", if unmatched > 0 { format!("; {unmatched} changed since convert emit from their triangles") } else { String::new() });
+        }
     }
     println!("  compile   {}", rep.compile_note);
     for t in &rep.terms {

@@ -12,8 +12,10 @@
 //! * [`shader`]: shader script parsing.
 //! * [`material`]: shader + scripts -> visibility, albedo image, alpha, sidedness.
 //! * [`texture`]: image files -> glTF-ready PNG/JPEG bytes, with limits.
+//! * [`solids`]: where q3map2 found solid, for relight's samples.
 //! * [`entities`]: the entity lump; [`mapfile`]: the entities of a `.map` source.
-//! * [`patch`]: adaptive, stitched Bezier patch tessellation.
+//! * [`patch`]: adaptive, stitched Bezier patch tessellation; [`lightmesh`]: the coarser
+//!   mesh q3map2's light stage made of a patch (what its surface lights emit from).
 //! * [`overlap`]: opaque faces overlapping on one plane, cut so a ray tracer sees one.
 //! * [`lightmaps`], [`atlas`]: lightmap pages and their packing.
 //! * [`units`]: axes, scale and the radiometric conversions.
@@ -27,6 +29,7 @@ pub mod entities;
 pub mod error;
 pub mod gltf_out;
 pub mod lightmaps;
+pub mod lightmesh;
 pub mod mapfile;
 pub mod material;
 pub mod output;

@@ -70,6 +70,23 @@ pub struct Tessellated {
     pub v_params: Vec<f64>,
 }
 
+impl Tessellated {
+    /// Area of the triangles, square Quake units.
+    pub fn area(&self) -> f64 {
+        self.indices
+            .chunks_exact(3)
+            .filter_map(|t| {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| self.verts.get(i as usize).map(pos));
+                Some(0.5 * dot_self(cross(sub(b?, a?), sub(c?, a?))).sqrt())
+            })
+            .sum()
+    }
+}
+
+fn dot_self(a: Pos) -> f64 {
+    dot(a, a)
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum PatchError {
     #[error("patch tessellation needs {needed} vertices, over the budget of {budget}")]

@@ -333,6 +333,13 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     let tess = patch::tessellate_all(&inputs, opts.patch_tolerance, opts.max_patch_vertices)
         .map_err(|e| Error::invalid(&map.shown, e.to_string()))?;
     let mut tess_of: BTreeMap<usize, patch::Tessellated> = patch_ids.into_iter().zip(tess).collect();
+    // The emitting patches, with the area of their drawn tessellation (m^2): q3map2 emitted
+    // from its own coarser mesh of them, which the scene carries for relight.
+    let emitting_patches: Vec<(usize, String, f64)> = tess_of
+        .iter()
+        .filter(|(si, _)| infos[bsp.surfaces[**si].shader as usize].light.surface.is_some())
+        .map(|(si, t)| (*si, infos[bsp.surfaces[*si].shader as usize].name.clone(), t.area() * opts.scale * opts.scale))
+        .collect();
     lap(&mut summary, "patches");
 
     // Geometry per (model, sky, material).
@@ -579,6 +586,11 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     }
     if let Some(solids) = crate::solids::q3map2_solids(&bsp, opts.scale) {
         extras["q3_solids"] = solids;
+    }
+    let cmdline = ents.iter().find(|e| e.classname() == "worldspawn").and_then(|w| w.get("_q3map2_cmdline"));
+    let subdivisions = crate::lightmesh::subdivisions_of(cmdline);
+    if let Some(meshes) = crate::lightmesh::q3map2_patch_lights(bsp, &emitting_patches, subdivisions, opts.scale) {
+        extras["q3_patch_lights"] = meshes;
     }
     scene.extras = Some(extras);
     lap(&mut summary, "entities");

@@ -242,6 +242,10 @@ pub struct SurfaceReport {
     pub rows_reached: usize,
     pub patches: usize,
     pub area_m2: f64,
+    /// Patch surfaces emitting from q3map2's own mesh of them, and those whose recorded
+    /// mesh no longer matches the scene (they emit from their triangles).
+    pub q3map2_meshes: usize,
+    pub meshes_unmatched: usize,
     /// The radiance the shader's own value stands for, and the fitted one, W/(m^2 sr).
     pub source_radiance: [f32; 3],
     pub radiance: Option<[f32; 3]>,
@@ -984,7 +988,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             }
         })
         .collect();
-    let surfaces = bases.surfaces.groups.iter().enumerate().map(|(s, g)| SurfaceReport { shader: g.name.clone(), rows_reached: bases.surfaces.reach(s), patches: g.patches, area_m2: g.area_m2, source_radiance: g.source_rgb, radiance: m.surfaces.get(s).copied().flatten() }).collect();
+    let surfaces = bases.surfaces.groups.iter().enumerate().map(|(s, g)| SurfaceReport { shader: g.name.clone(), rows_reached: bases.surfaces.reach(s), patches: g.patches, area_m2: g.area_m2, q3map2_meshes: g.q3map2_meshes, meshes_unmatched: g.meshes_unmatched, source_radiance: g.source_rgb, radiance: m.surfaces.get(s).copied().flatten() }).collect();
     Ok(Report {
         input: opts.input.display().to_string(),
         output: opts.output.display().to_string(),

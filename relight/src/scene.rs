@@ -378,6 +378,9 @@ pub struct Scene {
     /// Where q3map2 found solid (scene extras `q3_solids`, written by convert from the
     /// BSP); `None` when the file does not carry it (then the faces decide).
     pub solids: Option<crate::trace::solids::Solids>,
+    /// q3map2's light meshes of the emitting patches (scene extras `q3_patch_lights`,
+    /// written by convert); empty when the file does not carry them.
+    pub patch_lights: Vec<crate::model::patch_mesh::PatchMesh>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

@@ -104,5 +104,6 @@ pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene
         compile: Default::default(),
         relit: None,
         solids: None,
+        patch_lights: Vec::new(),
     }
 }

@@ -596,7 +596,14 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         },
         None => None,
     };
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids })
+    let patch_lights = match scene_extras.get("q3_patch_lights") {
+        Some(v) => crate::model::patch_mesh::from_extras(v, origin).unwrap_or_else(|why| {
+            skipped.push(format!("scene extras `q3_patch_lights` left out: {why}"));
+            Vec::new()
+        }),
+        None => Vec::new(),
+    };
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).

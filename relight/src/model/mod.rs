@@ -8,7 +8,7 @@
 //! | point and spot lights | [`lights`] (WGSL: `light_*.wgsl`) | position, intensity, colour; a spot's axis and cone |
 //! | sun | [`sun`] | irradiance, colour (its direction by search) |
 //! | sky light | [`sky`] | irradiance |
-//! | surface lights | [`surface`] | radiance per emitting shader |
+//! | surface lights | [`surface`] (patches from [`patch_mesh`], q3map2's mesh of them) | radiance per emitting shader |
 //! | ambient, minlight, filter, dirt | [`compile`] | ambient, minlight; filter and dirt on or off |
 //! | bounced light | [`bounce`] | scale per channel |
 //!
@@ -32,6 +32,7 @@
 pub mod bounce;
 pub mod compile;
 pub mod lights;
+pub mod patch_mesh;
 pub mod sky;
 pub mod stated;
 pub mod sun;
@@ -404,7 +405,7 @@ mod tests {
         let n = rows.len();
         // Synthetic bases: any fixed numbers exercise the chain.
         let sky = sky::SkyBasis { d: (0..n).map(|i| 0.2 + 0.1 * (i % 5) as f32).collect(), directions: vec![Vec3::Y], mean_cos_up: 1.0 };
-        let group = |name: &str| surface::Group { name: name.into(), materials: Vec::new(), source_rgb: [1.0; 3], patches: 1, area_m2: 1.0 };
+        let group = |name: &str| surface::Group { name: name.into(), materials: Vec::new(), source_rgb: [1.0; 3], patches: 1, area_m2: 1.0, q3map2_meshes: 0, meshes_unmatched: 0 };
         let mut surfaces = surface::SurfaceBasis { groups: vec![group("a"), group("b")], offsets: vec![0], ..Default::default() };
         for i in 0..n {
             surfaces.entries.push((0, 0.5 + 0.05 * (i % 7) as f32));

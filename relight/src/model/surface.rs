@@ -46,6 +46,11 @@ pub struct Group {
     pub patches: usize,
     /// Emitting area, m^2.
     pub area_m2: f64,
+    /// Patch surfaces emitting from q3map2's own mesh of them (the scene's
+    /// `q3_patch_lights`), and those whose record no longer matches the mesh (they emit
+    /// from their triangles).
+    pub q3map2_meshes: usize,
+    pub meshes_unmatched: usize,
 }
 
 /// The surface lights' basis (see the module docs), one sparse row per objective row.
@@ -171,7 +176,7 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
             Some(g) => g,
             None => {
                 let l = q3gltf_convert::units::Q3MAP2_SURFACE_SCALE as f32 * em.value * e_per_byte;
-                groups.push(Group { name, materials: Vec::new(), source_rgb: em.color.map(|c| c * l), patches: 0, area_m2: 0.0 });
+                groups.push(Group { name, materials: Vec::new(), source_rgb: em.color.map(|c| c * l), patches: 0, area_m2: 0.0, q3map2_meshes: 0, meshes_unmatched: 0 });
                 groups.len() - 1
             }
         };
@@ -180,47 +185,76 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
     }
     let mesh = &scene.mesh;
     let mut out = Vec::new();
+    // Emitting patches as q3map2 meshed them, where the scene carries its meshes and they
+    // still describe the triangles; their triangles then emit nothing themselves.
+    let mut taken = vec![false; mesh.triangles.len()];
+    if !scene.patch_lights.is_empty() {
+        let shader_of_tri: Vec<Option<&str>> = mesh.tri_material.iter().map(|&m| (group_of[m as usize] != u32::MAX).then(|| groups[group_of[m as usize] as usize].name.as_str())).collect();
+        let matched = super::patch_mesh::match_triangles(&scene.patch_lights, &mesh.positions, &mesh.triangles, &shader_of_tri, u);
+        for (pm, tris) in scene.patch_lights.iter().zip(matched) {
+            let Some(g) = groups.iter().position(|g| g.name == pm.shader) else { continue };
+            let Some(tris) = tris else {
+                groups[g].meshes_unmatched += 1;
+                continue;
+            };
+            let m = mesh.tri_material[tris[0] as usize] as usize;
+            for &t in &tris {
+                taken[t as usize] = true;
+            }
+            groups[g].q3map2_meshes += 1;
+            for (w, normal) in pm.windings() {
+                emit(scene, &mut groups[g], g as u32, m, w, normal, &mut out);
+            }
+        }
+    }
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let m = mesh.tri_material[t] as usize;
         let g = group_of[m];
-        if g == u32::MAX {
+        if g == u32::MAX || taken[t] {
             continue;
         }
-        let em = scene.materials[m].emitter.as_ref().expect("grouped materials emit");
         // Quake's winding: each glTF triangle is its Quake triangle reversed.
         let w = vec![mesh.positions[tri[2] as usize], mesh.positions[tri[1] as usize], mesh.positions[tri[0] as usize]];
         let normal = tri.iter().map(|&v| mesh.normals[v as usize]).sum::<Vec3>().normalize_or_zero();
         if normal == Vec3::ZERO {
             continue;
         }
-        let mut pieces = Vec::new();
-        subdivide(w, em.subdivide * u, &mut pieces, 0);
-        for piece in pieces {
-            let area = polygon_area(&piece);
-            // q3map2 drops pieces under one square unit.
-            if !(area >= u * u) {
-                continue;
-            }
-            let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-            for p in &piece {
-                lo = lo.min(*p);
-                hi = hi.max(*p);
-            }
-            let origin = 0.5 * (lo + hi) + normal * (crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
-            groups[g as usize].patches += 1;
-            groups[g as usize].area_m2 += area as f64;
-            let (frac, dist) = em.backsplash;
-            if frac > 0.0 {
-                let off = normal * (dist * u);
-                let verts: Vec<Vec3> = piece.iter().rev().map(|p| *p + off).collect();
-                let o = origin + off;
-                out.push(Patch { group: g, verts, origin: o, normal: -normal, dist: (-normal).dot(o), weight: 7.0 * frac, area, two_sided: false });
-            }
-            let two_sided = scene.materials[m].double_sided;
-            out.push(Patch { group: g, dist: normal.dot(origin), verts: piece, origin, normal, weight: 1.0, area, two_sided });
-        }
+        emit(scene, &mut groups[g as usize], g, m, w, normal, &mut out);
     }
     (groups, out)
+}
+
+/// One emitting winding (q3map2's order) of material `m` in group `g`: cut as q3map2
+/// cuts it, each piece a patch (and its backsplash copy).
+fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal: Vec3, out: &mut Vec<Patch>) {
+    let u = scene.units_m;
+    let em = scene.materials[m].emitter.as_ref().expect("grouped materials emit");
+    let mut pieces = Vec::new();
+    subdivide(w, em.subdivide * u, &mut pieces, 0);
+    for piece in pieces {
+        let area = polygon_area(&piece);
+        // q3map2 drops pieces under one square unit.
+        if !(area >= u * u) {
+            continue;
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for p in &piece {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+        let origin = 0.5 * (lo + hi) + normal * (crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
+        group.patches += 1;
+        group.area_m2 += area as f64;
+        let (frac, dist) = em.backsplash;
+        if frac > 0.0 {
+            let off = normal * (dist * u);
+            let verts: Vec<Vec3> = piece.iter().rev().map(|p| *p + off).collect();
+            let o = origin + off;
+            out.push(Patch { group: g, verts, origin: o, normal: -normal, dist: (-normal).dot(o), weight: 7.0 * frac, area, two_sided: false });
+        }
+        let two_sided = scene.materials[m].double_sided;
+        out.push(Patch { group: g, dist: normal.dot(origin), verts: piece, origin, normal, weight: 1.0, area, two_sided });
+    }
 }
 
 /// Below this many bytes (at the group's own value) a patch's upper bound skips the
