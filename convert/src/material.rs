@@ -39,9 +39,6 @@ pub struct ShaderInfo {
     pub scripted: bool,
     /// How q3map2 lit the map with this shader.
     pub light: LightInfo,
-    /// Whether the engine shows the baked lighting of a lightmapped, and of a vertex-lit,
-    /// surface with this shader ([`ShaderDef::shows_lighting`]; always without a script).
-    pub shows_lighting: (bool, bool),
 }
 
 /// What q3map2 does with a shader when it lights a map (its `light` stage).
@@ -175,7 +172,6 @@ pub fn resolve(r: &ShaderRef, lib: &ShaderLibrary, vfs: &Vfs) -> ShaderInfo {
         sun: def.and_then(|d| d.sun),
         scripted: def.is_some(),
         light: LightInfo::default(),
-        shows_lighting: def.map_or((true, true), |d| (d.shows_lighting(false), d.shows_lighting(true))),
     };
     info.light = light_info(def, &r.name, vfs);
     if visibility != Visibility::Drawn && visibility != Visibility::Sky {

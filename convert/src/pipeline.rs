@@ -488,12 +488,6 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
             Lighting::None => ("#unlit".into(), "none"),
         };
         extras.insert("q3_lighting".into(), json!(lighting_name));
-        // Lighting the game never shows (the shader has no stage that draws it): relight
-        // leaves it out of its target.
-        let shown = if lighting == Lighting::Vertex { info.shows_lighting.1 } else { info.shows_lighting.0 };
-        if lighting != Lighting::None && !shown {
-            extras.insert("q3_lighting_shown".into(), json!(false));
-        }
         if lighting != Lighting::None {
             extras.insert("q3_encoding".into(), json!("rgb8_linear"));
             extras.insert("q3_overbright_bits".into(), json!(opts.overbright_bits));

@@ -38,8 +38,6 @@ pub struct Stage {
     /// `add`, `filter` and `blend` are expanded.
     pub blend: Option<(String, String)>,
     pub alpha_func: Option<AlphaFunc>,
-    /// `rgbGen`'s kind, lower case (`identity`, `vertex`, `wave`, ...).
-    pub rgb_gen: Option<String>,
 }
 
 impl Stage {
@@ -97,23 +95,6 @@ pub struct ShaderDef {
 impl ShaderDef {
     pub fn has_parm(&self, p: &str) -> bool {
         self.surfaceparms.iter().any(|s| s == p)
-    }
-
-    /// Whether the engine shows the baked lighting of a surface with this shader: a
-    /// lightmapped surface through a `$lightmap` stage, a vertex-lit one through a stage
-    /// coloured by its vertices (`rgbGen vertex`, `exactVertex`, `oneMinusVertex`). A
-    /// script without stages counts as showing it (what the engine draws then is the
-    /// default). Where it is not shown (additive glows, teleporter fields, flames), what
-    /// q3map2 stored there is never seen in game.
-    pub fn shows_lighting(&self, vertex_lit: bool) -> bool {
-        self.stages.is_empty()
-            || self.stages.iter().any(|st| {
-                if vertex_lit {
-                    matches!(st.rgb_gen.as_deref(), Some("vertex" | "exactvertex" | "oneminusvertex"))
-                } else {
-                    st.map == Some(StageMap::Lightmap)
-                }
-            })
     }
 
     /// The albedo image: the first stage image that is neither `$lightmap` nor white.
@@ -277,7 +258,6 @@ pub fn parse(text: &str) -> Parsed {
                     "animmap" => st.map = args.get(1).map(|a| image_or_special(a)),
                     "videomap" => st.map = Some(StageMap::Video),
                     "blendfunc" => st.blend = expand_blend(&args),
-                    "rgbgen" => st.rgb_gen = args.first().map(|a| a.to_ascii_lowercase()),
                     "alphafunc" => {
                         st.alpha_func = match args.first().map(|a| a.to_ascii_uppercase()).as_deref() {
                             Some("GT0") => Some(AlphaFunc::Gt0),
@@ -438,23 +418,6 @@ textures/anim/x { { animMap 5 textures/a1.tga textures/a2.tga } }
         let sky = &p.shaders[2];
         assert_eq!(sky.sky_lights, vec![(180.0, 8)], "one iteration is no sky light (q3map2 needs two)");
         assert_eq!(sky.sun.unwrap().elevation, 90.0);
-    }
-
-    #[test]
-    fn the_lighting_shows_only_through_a_stage_that_draws_it() {
-        let p = parse(
-            "textures/a/lit { { map textures/a/wall.tga } { map $lightmap blendFunc filter } }\n\
-             textures/a/glow { cull disable { map textures/a/glow.tga blendFunc add rgbGen wave sin .5 .5 0 1.5 } }\n\
-             textures/a/vertex { { map textures/a/v.tga rgbGen exactVertex } }\n\
-             textures/a/bare { q3map_surfacelight 100 }",
-        );
-        assert!(p.problems.is_empty(), "{:?}", p.problems);
-        let shows = |k: usize| (p.shaders[k].shows_lighting(false), p.shaders[k].shows_lighting(true));
-        assert_eq!(shows(0), (true, false));
-        assert_eq!(p.shaders[1].stages[0].rgb_gen.as_deref(), Some("wave"));
-        assert_eq!(shows(1), (false, false), "an additive glow never shows the lighting");
-        assert_eq!(shows(2), (false, true));
-        assert_eq!(shows(3), (true, true), "no stages: the engine's default");
     }
 
     #[test]

@@ -370,10 +370,8 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         let declared = ex.get("q3_lighting").and_then(Value::as_str);
         // Sky surfaces (convert puts them under the "sky" node; see below) carry no target.
         let sky = ex.get("q3_sky").and_then(Value::as_bool).unwrap_or(false);
-        // Lighting the game never shows (convert's `q3_lighting_shown`): no target.
-        let shown = ex.get("q3_lighting_shown").and_then(Value::as_bool).unwrap_or(true);
         let lighting = match declared {
-            _ if sky || !shown => Lighting::None,
+            _ if sky => Lighting::None,
             Some("lightmap") if lightmap.is_some() => Lighting::Lightmap,
             Some("vertex") => Lighting::Vertex,
             Some("none") => Lighting::None,
