@@ -293,7 +293,8 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// see the README's recovery table; the fidelity issue's goals (within 1.15 x the source
 /// refit, 7 of 10 found) are met on oacmpdm4 only. On 2026-11-25, with the data's clamp
 /// and the linear fit's active set of censored bounds: 0.2233 (3 lights), 0.1881 (33),
-/// 0.2494 (63), 0.2115 (50), 0.0878 (16).
+/// 0.2494 (63), 0.2115 (50), 0.0878 (16); on 2026-11-26, with q3map2's patch mesh:
+/// 0.2123 (2), 0.1863 (34), 0.2567 (61), 0.2115 (50), 0.0878 (16).
 const RECOVERY: [(&str, f64, usize); 5] = [
     ("oacmpdm1", 0.26, 0),
     ("oacmpdm2", 0.23, 0),
