@@ -311,6 +311,10 @@ pub fn q3map2_patch_lights(bsp: &Bsp, emitting: &[(usize, String, f64)], subdivi
     let mut list = Vec::new();
     for (si, shader, area_m2) in emitting {
         let Some(s) = bsp.surfaces.get(*si) else { continue };
+        // A control point that is not a number makes no mesh (nor a drawn surface).
+        if !bsp.surface_verts(s).iter().all(|v| v.xyz.iter().chain(&v.normal).all(|x| x.is_finite())) {
+            continue;
+        }
         let iterations = iterations_for_curve(longest.get(si).copied().unwrap_or(0.0), subdivisions);
         let Some(mesh) = light_mesh(bsp.surface_verts(s), s.patch_w as usize, s.patch_h as usize, iterations) else { continue };
         let mut xyz = Vec::with_capacity(3 * mesh.verts.len());
@@ -390,6 +394,53 @@ mod tests {
         assert_eq!(subdivisions_of(Some("q3map2 -meta -subdivisions 2 x.map; q3map2 -light -fast x.bsp")), 8);
         assert_eq!(subdivisions_of(Some("-light -fast -subdivisions 4")), 4);
         assert_eq!(subdivisions_of(Some("-light -subdivisions -3")), 1);
+    }
+
+    /// A map of one model whose surfaces are the given 3x3 patches.
+    fn map_of(patches: &[Vec<DrawVert>]) -> Bsp {
+        use crate::bsp::{Format, Model, OtherCounts, ShaderRef, Surface};
+        let mut verts = Vec::new();
+        let mut surfaces = Vec::new();
+        for p in patches {
+            let mut s = Surface::new(0, SurfaceType::Patch);
+            (s.first_vert, s.num_verts, s.patch_w, s.patch_h) = (verts.len() as u32, 9, 3, 3);
+            verts.extend_from_slice(p);
+            surfaces.push(s);
+        }
+        Bsp {
+            format: Format::Ibsp(46),
+            entities: String::new(),
+            shaders: vec![ShaderRef { name: "lamp".into(), surface_flags: 0, content_flags: 0 }],
+            models: vec![Model { mins: [0.0; 3], maxs: [1.0; 3], first_surface: 0, num_surfaces: surfaces.len() as u32, first_brush: 0, num_brushes: 0 }],
+            verts,
+            indices: vec![],
+            surfaces,
+            lightmaps: vec![],
+            collision: Default::default(),
+            other: OtherCounts::default(),
+        }
+    }
+
+    #[test]
+    fn a_patch_takes_its_groups_longest_curve_and_a_broken_one_has_no_record() {
+        // The quarter lamp (no curve of its own) touching a wide arch.
+        let mut arch = Vec::new();
+        for i in 0..3 {
+            for (j, z) in [0.0, 128.0, 0.0].into_iter().enumerate() {
+                arch.push(v(32.0 + 128.0 * j as f32, 64.0 * i as f32, z));
+            }
+        }
+        let b = map_of(&[quarter(), arch]);
+        let longest = group_longest_curves(&b);
+        assert!(longest[&0] > 128.0 && longest[&0] == longest[&1], "{longest:?}");
+        let rec = q3map2_patch_lights(&b, &[(0, "lamp".into(), 1.0)], 8, 1.0).unwrap();
+        // The lamp is subdivided as the arch asks: its rim in 2^(k+1) spans.
+        let k = iterations_for_curve(longest[&0], 8);
+        assert!(k >= 1);
+        assert_eq!(rec[0]["size"], serde_json::json!([2, (2 << k) + 1]));
+        let mut broken = quarter();
+        broken[4].xyz[0] = f32::NAN;
+        assert!(q3map2_patch_lights(&map_of(&[broken]), &[(0, "lamp".into(), 1.0)], 8, 1.0).is_none());
     }
 
     #[test]
