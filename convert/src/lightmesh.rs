@@ -35,6 +35,7 @@
 
 use crate::bsp::{Bsp, DrawVert, SurfaceType};
 use crate::units;
+use glam::DVec3;
 use serde_json::{json, Value};
 use std::collections::HashMap;
 
@@ -47,33 +48,18 @@ const BORDER_EPSILON: f64 = 1.0;
 /// A grid line this close to straight (Quake units) is dropped.
 const LINEAR_EPSILON: f64 = 0.1;
 
-type P = [f64; 3];
+type P = DVec3;
 
-fn sub(a: P, b: P) -> P {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn add(a: P, b: P) -> P {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn scale(a: P, s: f64) -> P {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-fn dot(a: P, b: P) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn length(a: P) -> f64 {
-    dot(a, a).sqrt()
-}
 fn mid(a: P, b: P) -> P {
-    scale(add(a, b), 0.5)
+    (a + b) * 0.5
 }
 /// `a / |a|`, and the zero vector for the zero vector (q3map2's `VectorNormalize`).
 fn normalized(a: P) -> (P, f64) {
-    let l = length(a);
+    let l = a.length();
     if l == 0.0 {
-        ([0.0; 3], 0.0)
+        (P::ZERO, 0.0)
     } else {
-        (scale(a, 1.0 / l), l)
+        (a * (1.0 / l), l)
     }
 }
 
@@ -86,7 +72,7 @@ pub struct Vert {
 
 impl Vert {
     fn of(v: &DrawVert) -> Vert {
-        Vert { xyz: v.xyz.map(f64::from), normal: v.normal.map(f64::from) }
+        Vert { xyz: DVec3::from(v.xyz.map(f64::from)), normal: DVec3::from(v.normal.map(f64::from)) }
     }
 }
 
@@ -107,22 +93,22 @@ pub struct LightMesh {
 /// `ExpandLongestCurve`: the length q3map2 measures along the control line `a b c` (none
 /// for a straight line or one with a segment under 1/8 unit).
 fn curve_length(a: P, b: P, c: P) -> Option<f64> {
-    let (ab, lab) = normalized(sub(b, a));
-    let (bc, lbc) = normalized(sub(c, b));
-    let (ac, lac) = normalized(sub(c, a));
+    let (ab, lab) = normalized(b - a);
+    let (bc, lbc) = normalized(c - b);
+    let (ac, lac) = normalized(c - a);
     if lab < 0.125 || lbc < 0.125 || lac < 0.125 {
         return None;
     }
-    if dot(ab, bc) > 0.99 && dot(ab, ac) > 0.99 {
+    if ab.dot(bc) > 0.99 && ab.dot(ac) > 0.99 {
         return None;
     }
-    let (ab, bc) = (sub(b, a), sub(c, b));
+    let (ab, bc) = (b - a, c - b);
     // q3map2's walk (eight steps from a, along ab then bending to bc; it never reaches c).
     let (mut last, mut len) = (a, 0.0);
     for i in 0..8 {
         let t = i as f64 / 8.0;
-        let pt = add(a, add(scale(ab, 1.0 - t), scale(bc, t)));
-        len += length(sub(pt, last));
+        let pt = a + (ab * (1.0 - t) + bc * t);
+        len += (pt - last).length();
         last = pt;
     }
     Some(len)
@@ -131,7 +117,7 @@ fn curve_length(a: P, b: P, c: P) -> Option<f64> {
 /// The longest curve of one patch's control grid (row-major, `w x h`), as q3map2 measures
 /// it: along the even rows and columns, except the last of each.
 pub fn longest_curve(ctrl: &[DrawVert], w: usize, h: usize) -> f64 {
-    let p = |i: usize, j: usize| ctrl[i * w + j].xyz.map(f64::from);
+    let p = |i: usize, j: usize| DVec3::from(ctrl[i * w + j].xyz.map(f64::from));
     let mut longest = 0.0f64;
     for j in (0..w.saturating_sub(2)).step_by(2) {
         for i in (0..h.saturating_sub(2)).step_by(2) {
@@ -170,17 +156,17 @@ pub fn group_longest_curves(bsp: &Bsp) -> HashMap<usize, f64> {
         let mut cells: HashMap<[i64; 3], Vec<(usize, P)>> = HashMap::new();
         for (k, &si) in ids.iter().enumerate() {
             for v in bsp.surface_verts(&bsp.surfaces[si]) {
-                let p = v.xyz.map(f64::from);
-                if !p.iter().all(|x| x.is_finite()) {
+                let p = DVec3::from(v.xyz.map(f64::from));
+                if !p.is_finite() {
                     continue;
                 }
-                let c = p.map(|x| (x / BORDER_EPSILON).floor() as i64);
+                let c = p.to_array().map(|x| (x / BORDER_EPSILON).floor() as i64);
                 for dx in -1..=1 {
                     for dy in -1..=1 {
                         for dz in -1..=1 {
                             let Some(list) = cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else { continue };
                             for &(other, q) in list {
-                                if other != k && (0..3).all(|a| (p[a] - q[a]).abs() < BORDER_EPSILON) {
+                                if other != k && (p - q).abs().max_element() < BORDER_EPSILON {
                                     let (ra, rb) = (root(&mut parent, k), root(&mut parent, other));
                                     parent[ra] = rb;
                                 }
@@ -261,8 +247,8 @@ pub fn light_mesh(ctrl: &[DrawVert], w: usize, h: usize, iterations: u32) -> Opt
     }
     // `RemoveLinearMeshColumnsRows`: columns, then rows.
     let off_line = |p: P, a: P, b: P| {
-        let (dir, _) = normalized(sub(b, a));
-        length(sub(p, add(a, scale(dir, dot(sub(p, a), dir)))))
+        let (dir, _) = normalized(b - a);
+        (p - (a + dir * (p - a).dot(dir))).length()
     };
     let mut j = 1;
     while j + 1 < rows[0].len() {
@@ -320,8 +306,8 @@ pub fn q3map2_patch_lights(bsp: &Bsp, emitting: &[(usize, String, f64)], subdivi
         let mut xyz = Vec::with_capacity(3 * mesh.verts.len());
         let mut normal = Vec::with_capacity(3 * mesh.verts.len());
         for v in &mesh.verts {
-            xyz.extend(units::direction(v.xyz).map(|x| x * scale));
-            normal.extend(units::direction(v.normal));
+            xyz.extend(units::direction(v.xyz.to_array()).map(|x| x * scale));
+            normal.extend(units::direction(v.normal.to_array()));
         }
         list.push(json!({ "shader": shader, "size": [mesh.width, mesh.height], "xyz": xyz, "normal": normal, "area_m2": area_m2 }));
     }
@@ -356,7 +342,7 @@ mod tests {
         // The middle column (all at the centre) is dropped; the rim's middle point is on
         // the arc now, 0.25 of the way from the corner's control point: (24, 24).
         assert_eq!((m.width, m.height), (2, 3));
-        let xyz: Vec<P> = m.verts.iter().map(|v| v.xyz).collect();
+        let xyz: Vec<[f64; 3]> = m.verts.iter().map(|v| v.xyz.to_array()).collect();
         assert_eq!(xyz, vec![[0.0; 3], [0.0, 32.0, 0.0], [0.0; 3], [24.0, 24.0, 0.0], [0.0; 3], [32.0, 0.0, 0.0]]);
     }
 

@@ -38,12 +38,13 @@ const AREA_TOLERANCE: f64 = 0.005;
 /// Slack of the bounds test, Quake units.
 const BOUNDS_SLACK_UNITS: f32 = 0.5;
 
+/// `key`'s finite numbers, exactly `len` of them (`trace::solids`'s reader).
 fn numbers(v: &Value, key: &str, len: usize) -> Result<Vec<f64>, String> {
-    let a = v.get(key).and_then(Value::as_array).ok_or_else(|| format!("`{key}` is missing or not a list"))?;
-    if a.len() != len {
-        return Err(format!("`{key}` has {} numbers, not {len}", a.len()));
+    let x = crate::trace::solids::numbers(v, key, 3)?;
+    if x.len() != len {
+        return Err(format!("`{key}` has {} numbers, not {len}", x.len()));
     }
-    a.iter().map(|x| x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| format!("`{key}` holds {x}, not a finite number"))).collect()
+    Ok(x)
 }
 
 /// Reads the `q3_patch_lights` record; `origin` is the stored frame's origin (m). Every

@@ -46,7 +46,7 @@ struct Leaf {
     count: u32,
 }
 
-fn numbers(v: &Value, key: &str, group: usize) -> Result<Vec<f64>, String> {
+pub(crate) fn numbers(v: &Value, key: &str, group: usize) -> Result<Vec<f64>, String> {
     let a = v.get(key).and_then(Value::as_array).ok_or_else(|| format!("`{key}` is missing or not a list"))?;
     if a.len() % group != 0 {
         return Err(format!("`{key}` has {} numbers, not a multiple of {group}", a.len()));
