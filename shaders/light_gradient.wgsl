@@ -33,7 +33,7 @@ fn main(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
         var b = vec4<f32>(0.0);
         var c = vec4<f32>(0.0);
         if (live && visible(j, i) && any(rh != vec3<f32>(0.0))) {
-            let t = light_term(r.pos, r.normal, j);
+            let t = light_term(r.pos, facing(r, lights[3u * j].xyz - r.pos), j);
             if (t.g != 0.0) {
                 let s = dot(rh, lights[3u * j + 1u].xyz);
                 let gi = rh * t.g;

@@ -17,7 +17,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var e = vec3<f32>(0.0);
     for (var j = 0u; j < lp.k; j = j + 1u) {
         if (visible(j, i)) {
-            let t = light_term(r.pos, r.normal, j);
+            let t = light_term(r.pos, facing(r, lights[3u * j].xyz - r.pos), j);
             e = e + lights[3u * j + 1u].xyz * t.g;
         }
     }

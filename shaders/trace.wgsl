@@ -44,7 +44,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = verts[i];
     // light_pos[j].w: the reach; farther rows get no bit (relight/src/trace/visibility.rs).
     let d = v.pos - light_pos[j].xyz;
-    if (dot(d, d) <= light_pos[j].w * light_pos[j].w && visible_from(v.pos, v.normal, light_pos[j].xyz, tp.ray_offset, tp.inhibit)) {
+    if (dot(d, d) <= light_pos[j].w * light_pos[j].w && visible_from(v.pos, facing(v, light_pos[j].xyz - v.pos), light_pos[j].xyz, tp.ray_offset, tp.inhibit)) {
         atomicOr(&bits[j * tp.words + (i >> 5u)], 1u << (i & 31u));
     }
 }

@@ -150,7 +150,7 @@ mod tests {
         let bvh = Bvh::build(&scene.mesh);
         let rows = |pos: Vec3, n: Vec3, albedo: [f32; 3]| {
             let mut r = Rows::new(Sampling::plain(2.0));
-            r.push(Row { vertex: u32::MAX, material: 1, texel: [u32::MAX; 3], pos, normal: n, albedo, lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE });
+            r.push(Row { vertex: u32::MAX, material: 1, texel: [u32::MAX; 3], pos, normal: n, albedo, lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE, two_sided: false });
             r.finish();
             r
         };
@@ -192,7 +192,7 @@ mod tests {
         let bvh = Bvh::build(&scene.mesh);
         let mut pb = Rows::new(Sampling::plain(10.0));
         for k in 0..200 {
-            pb.push(Row { vertex: u32::MAX, material: 0, texel: [u32::MAX; 3], pos: Vec3::new(0.5, 0.0, k as f32 * 0.01), normal: Vec3::Y, albedo: [1.0; 3], lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE });
+            pb.push(Row { vertex: u32::MAX, material: 0, texel: [u32::MAX; 3], pos: Vec3::new(0.5, 0.0, k as f32 * 0.01), normal: Vec3::Y, albedo: [1.0; 3], lo: [0.0; 3], hi: [0.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE, two_sided: false });
         }
         pb.finish();
         let (o, _) = gather(&scene, &bvh, &pb, 64);

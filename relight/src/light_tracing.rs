@@ -551,6 +551,7 @@ pub(crate) mod tests {
                 lower: [0.0; 3],
                 area: 1.0,
                 solid_ahead: crate::rows::SolidAhead::NONE,
+                two_sided: false,
             });
         }
         rows.finish();

@@ -445,7 +445,7 @@ fn build_rows(opts: &Options, plan: &Plan, scene: &Scene, bvh: &Bvh) -> Result<(
     let (mut rows, tstats, luxel_stats, backend) = match opts.target {
         TargetSpace::Vertex => {
             let (tg, tstats, target_backend) = project(plan, scene)?;
-            (projection::rows(&scene.mesh, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob, per_byte)), tstats, None, target_backend)
+            (projection::rows(scene, &tg, crate::rows::Sampling::q3map2(diag, scene.units_m, ob, per_byte)), tstats, None, target_backend)
         }
         TargetSpace::Luxel => {
             // The per-vertex projection is still needed for vertex-lit materials' rows.

@@ -78,6 +78,7 @@ pub fn room(n: usize) -> (Mesh, Rows) {
             lower: if censored { [0.4, 0.0, 0.3] } else { [0.0; 3] },
             area: area[i],
             solid_ahead: crate::rows::SolidAhead::NONE,
+            two_sided: false,
         });
     }
     rows.finish();

@@ -235,7 +235,8 @@ struct GpuRow {
     pos: [f32; 3],
     pad0: f32,
     normal: [f32; 3],
-    pad1: f32,
+    /// 1.0 for a two-sided row ([`Rows::facing`]), else 0.0.
+    two_sided: f32,
 }
 
 #[repr(C)]
@@ -361,7 +362,7 @@ fn grid(groups: u32) -> (u32, u32) {
 impl GpuBackend {
     pub fn new(ctx: Context, rows: &Rows, bvh: &Bvh) -> Result<GpuBackend> {
         let d = &ctx.device;
-        let gr: Vec<GpuRow> = (0..rows.len()).map(|i| GpuRow { pos: rows.pos[i].to_array(), pad0: 0.0, normal: rows.normal[i].to_array(), pad1: 0.0 }).collect();
+        let gr: Vec<GpuRow> = (0..rows.len()).map(|i| GpuRow { pos: rows.pos[i].to_array(), pad0: 0.0, normal: rows.normal[i].to_array(), two_sided: if rows.two_sided[i] { 1.0 } else { 0.0 } }).collect();
         let max = ctx.max_binding();
         if gr.len() * std::mem::size_of::<GpuRow>() > max || bvh.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max {
             return Err(Error::Gpu(format!("the rows or the BVH exceed the adapter's storage binding limit of {max} bytes")));
@@ -564,11 +565,15 @@ mod tests {
         mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
         rows.sampling.falloff = 0.02;
         rows.sampling.inhibit = 0.01;
+        // A third of the rows two-sided: the fourth light, outside the room, reaches those
+        // of the wall it stands behind.
+        rows.two_sided = (0..rows.len()).map(|i| i % 3 == 0).collect();
         let bvh = Bvh::build(&mesh);
         let lights = vec![
             Light::point(Vec3::new(2.0, 1.2, 0.5), [2.0, 1.5, 1.0]),
             Light::point(Vec3::new(3.1, 2.0, 2.4), [0.7, 1.2, 1.9]),
             Light { pos: Vec3::new(0.6, 2.2, 2.7), rgb: [1.0, 1.0, 1.0], spot: Some(Spot { axis: Vec3::new(0.3, -1.0, -0.2).normalize(), radius_by_dist: 0.8 }) },
+            Light::point(Vec3::new(-0.6, 1.3, 1.4), [1.2, 1.0, 0.8]),
         ];
         let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
         // The third light traced only to 2.5 m: farther rows have no bit.
@@ -578,6 +583,7 @@ mod tests {
         assert_eq!(g_bits, c_bits, "visibility bits differ");
         let blocked = c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>();
         assert!(blocked > 0, "the pillar casts a shadow");
+        assert!(c_bits[3].iter().any(|w| *w != 0), "the light outside reaches the two-sided rows behind it");
         let mut vis = Visibility::default();
         vis.update(&crate::model::lights::sources(&lights), 0.0, &rows.sampling, rows.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };

@@ -11,8 +11,11 @@
 //! The operator `K` is traced once (the geometry does not change during a fit). A ray
 //! lands on the row that represents the hit point: the luxel row of the lightmap texel
 //! under it (or the nearest row of the 3x3 texels around, on the same material), or the
-//! vertex rows of a vertex-lit triangle by barycentric weight; rays that escape, hit a
-//! back face or a surface without rows bring nothing.
+//! vertex rows of a vertex-lit triangle by barycentric weight; rays that escape, hit the
+//! back of a one-sided surface or a surface without rows bring nothing. A two-sided row
+//! (a `cull none` surface, [`Rows::facing`]) gathers over both of its hemispheres, `M`
+//! rays each, and the back of a two-sided surface sends light as its front does (q3map2's
+//! bounce lights of such a shader are two-sided).
 //!
 //! q3map2 (`-bounce N`) re-emits each pass's light `N` times as area lights whose colour
 //! is the texture's raw byte (its sRGB encoding, read as linear) times the luxel, with a
@@ -136,15 +139,17 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize) -> (
     let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len())
         .into_par_iter()
         .map(|i| {
-            let n = rows.normal[i];
-            let o = rows.pos[i] + n * rows.sampling.ray_offset;
             let mut acc: Vec<(u32, f32)> = Vec::new();
             let mut landed = 0u64;
             let add = |j: u32, w: f32, acc: &mut Vec<(u32, f32)>| match acc.iter_mut().find(|e| e.0 == j) {
                 Some(e) => e.1 += w,
                 None => acc.push((j, w)),
             };
-            for cell in 0..m {
+            // A two-sided row gathers over both hemispheres, each from its own side.
+            let sides = if rows.two_sided[i] { 2 } else { 1 };
+            for (side, cell) in (0..sides).flat_map(|side| (0..m).map(move |cell| (side, cell))) {
+                let n = if side == 0 { rows.normal[i] } else { -rows.normal[i] };
+                let o = rows.pos[i] + n * rows.sampling.ray_offset;
                 let d = cosine_direction(n, i as u32, cell, s);
                 // A row on another surface's plane (the edge row of a wall under a
                 // ceiling) sees that surface over half its hemisphere, from distance 0.
@@ -152,11 +157,12 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize) -> (
                 let tri = tri as usize;
                 let [ia, ib, ic] = mesh.triangles[tri].map(|v| v as usize);
                 let (a, b, c) = (mesh.positions[ia], mesh.positions[ib], mesh.positions[ic]);
-                if (b - a).cross(c - a).dot(d) >= 0.0 {
-                    continue; // the back of a surface
+                let mat = &scene.materials[mesh.tri_material[tri] as usize];
+                if (b - a).cross(c - a).dot(d) >= 0.0 && !mat.double_sided {
+                    continue; // the back of a one-sided surface (q3map2's bounce lights of a
+                              // two-sided shader emit from both faces)
                 }
                 let bc = barycentric(o + d * dist, a, b, c);
-                let mat = &scene.materials[mesh.tri_material[tri] as usize];
                 match (mat.lighting, mat.lightmap) {
                     (Lighting::Lightmap, Some(lm)) => {
                         let uv: Vec2 = mesh.uv1[ia] * bc[0] + mesh.uv1[ib] * bc[1] + mesh.uv1[ic] * bc[2];

@@ -9,6 +9,10 @@
 //! g_ij = max(0, n_i . d) / |d| / max(|d|, eps)^2 * cone_ij,     d = p_j - x_i
 //! ```
 //!
+//! A two-sided row takes `n_i` turned towards the light ([`Rows::facing`]): q3map2's
+//! `|n . d|` for a `cull none` surface; its gradient is the same expression with that
+//! normal.
+//!
 //! `eps` is q3map2's 16-unit distance clamp ([`Sampling::eps`]); a point light has
 //! `cone = 1`. A spot light (axis `a`, unit; `r = radius / distance` at its edge) follows
 //! q3map2: with `u = x - p`, the distance along the axis `t = u . a`, the distance from
@@ -138,7 +142,7 @@ pub fn cone(x: Vec3, p: Vec3, spot: &Spot, ramp: f32) -> (f32, Vec3, Vec3, f32) 
 /// `g` of light `l` at row `i`, with its derivatives; zero below the falloff tolerance.
 #[inline]
 pub fn term(rows: &Rows, i: usize, l: &Light) -> Term {
-    term_at(rows.pos[i], rows.normal[i], l, &rows.sampling)
+    term_at(rows.pos[i], rows.facing(i, l.pos - rows.pos[i]), l, &rows.sampling)
 }
 
 /// [`term`] at an arbitrary point (the probe, the bake).
@@ -168,7 +172,7 @@ pub fn term_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> Term {
 /// fit, the placement's scores): [`term`]'s `g` by the same arithmetic, to the bit.
 #[inline]
 pub fn g(rows: &Rows, i: usize, l: &Light) -> f32 {
-    g_at(rows.pos[i], rows.normal[i], l, &rows.sampling)
+    g_at(rows.pos[i], rows.facing(i, l.pos - rows.pos[i]), l, &rows.sampling)
 }
 
 /// [`g`] at an arbitrary point.

@@ -397,10 +397,12 @@ mod tests {
 
     /// Every parameter's analytic gradient against central differences, with every term
     /// in the model at once (lights and a spot, sun, sky, surfaces, ambient, filter, dirt,
-    /// bounce, minlight).
+    /// bounce, minlight), and a quarter of the rows two-sided (a light outside the room
+    /// reaches those of the wall it stands behind).
     #[test]
     fn gradient_matches_central_differences() {
-        let (mesh, rows) = room(6);
+        let (mesh, mut rows) = room(6);
+        rows.two_sided = (0..rows.len()).map(|i| i % 4 == 0).collect();
         let bvh = Bvh::build(&mesh);
         let n = rows.len();
         // Synthetic bases: any fixed numbers exercise the chain.
@@ -436,6 +438,7 @@ mod tests {
             lights: vec![
                 Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0, 1.5, 1.0]),
                 Light { pos: Vec3::new(2.6, 2.4, 2.2), rgb: [0.7, 1.2, 1.9], spot: Some(Spot { axis: Vec3::new(-0.2, -1.0, -0.1).normalize(), radius_by_dist: 0.9 }) },
+                Light::point(Vec3::new(-0.7, 0.9, 2.1), [1.2, 1.0, 0.8]),
             ],
             sun: Some(Sun { to_sun: Vec3::new(0.3, 0.9, -0.2).normalize(), rgb: [1.5, 1.2, 0.9] }),
             sky: Some([0.3, 0.4, 0.5]),
@@ -471,8 +474,10 @@ mod tests {
             let scale = an.abs().max(fd.abs()).max(1e-9 * ev.f);
             assert!((fd - an).abs() <= 3e-3 * scale, "{name}: analytic {an} vs central difference {fd}");
         };
+        let behind = (0..rows.len()).filter(|&i| vis.visible(2, i) && rows.normal[i].dot(model.lights[2].pos - rows.pos[i]) < 0.0 && crate::model::lights::g(&rows, i, &model.lights[2]) > 0.0).count();
+        assert!(behind > 0, "the light outside lights two-sided rows from behind");
         let h = 1e-3f32;
-        for j in 0..2 {
+        for j in 0..3 {
             for q in 0..3 {
                 let (mut a, mut b) = (model.clone(), model.clone());
                 a.lights[j].pos[q] += h;

@@ -9,7 +9,8 @@
 //! D_i = 1/N sum_k max(0, n_i . s_k) V_ik          (V_ik: the ray towards s_k reaches sky)
 //! ```
 //!
-//! and scales it by a fitted irradiance `K_c` [W/m^2]: `E_ic = K_c D_i`. A q3map2 sky
+//! (`n_i` turned towards `s_k` on a two-sided row, [`Rows::facing`]) and scales it by a
+//! fitted irradiance `K_c` [W/m^2]: `E_ic = K_c D_i`. A q3map2 sky
 //! light of value `v` is `K = pi e_per_byte v`; written for Blender as emission of the
 //! sky surfaces with radiance `K mean_k(cos s_k) / pi` (the same irradiance on an open,
 //! upward-facing surface). Gradient: `dF/dK_c = sum_i rho_ic D_i`.
@@ -43,8 +44,9 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
         .map(|i| {
             let mut s = 0.0f32;
             for &w in dirs {
-                let c = rows.normal[i].dot(w);
-                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], rows.normal[i], w, &rows.sampling, sky, rows.solid_ahead[i]) {
+                let n = rows.facing(i, w);
+                let c = n.dot(w);
+                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, rows.solid_ahead[i]) {
                     s += c;
                 }
             }

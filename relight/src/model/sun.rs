@@ -7,6 +7,8 @@
 //! ([`crate::trace::visibility::trace_sun`]). q3map2 adds `intensity x cos` bytes, so a
 //! `q3map_sun` of intensity `q` is `S = pi e_per_byte q`.
 //!
+//! A two-sided row's `n_i` is turned towards the sun ([`Rows::facing`]).
+//!
 //! Gradients: `dF/dS_c = sum_i rho_ic V_i cos_i` and `dF/dw = sum_i (sum_c rho_ic S_c)
 //! V_i n_i` where `cos_i > 0`. The fit never moves `w` by its gradient (the shadows' edges,
 //! which carry the information, are invisible to it): [`crate::init::sun_search`] does.
@@ -25,11 +27,12 @@ pub struct Sun {
 }
 
 impl Sun {
-    /// `max(0, n . w)` at row `i` where the sun reaches it, else 0.
+    /// `max(0, n . w)` at row `i` where the sun reaches it, else 0 (`n`: the row's normal
+    /// turned towards the sun, [`Rows::facing`]).
     #[inline]
     pub fn cos_at(&self, rows: &Rows, vis: &Visibility, i: usize) -> f32 {
         if vis.sun_visible(i) {
-            rows.normal[i].dot(self.to_sun).max(0.0)
+            rows.facing(i, self.to_sun).dot(self.to_sun).max(0.0)
         } else {
             0.0
         }
@@ -58,7 +61,7 @@ impl Sun {
                     gs[k] += r[k] * c;
                     q += r[k] * self.rgb[k] as f64;
                 }
-                let n = rows.normal[i];
+                let n = rows.facing(i, self.to_sun);
                 gw[0] += q * n.x as f64;
                 gw[1] += q * n.y as f64;
                 gw[2] += q * n.z as f64;

@@ -13,7 +13,9 @@
 //! A two-sided shader (`cull none`/`disable`/`twosided`, e.g. the flames of torches) emits
 //! from both faces: samples behind its plane count, a negative form factor counts as its
 //! opposite, and its shadow ray then goes to a point 1 unit behind the patch (its
-//! backsplash copy stays one-sided).
+//! backsplash copy stays one-sided). A two-sided receiver (a row of a `cull none`
+//! surface) does the same from its side: no culling behind its plane, a negative form
+//! factor counts as its opposite with the shadow ray to the point behind the patch.
 //!
 //! A Lambertian emitter of radiance `L` [W/(m^2 sr)] gives `E = pi L F`; q3map2's value
 //! `V` is `L = 0.75 V e_per_byte` ([`q3gltf_convert::units::q3map2_surface_radiance`]).
@@ -284,15 +286,16 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
     let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len())
         .into_par_iter()
         .map(|i| {
-            let (x, n) = (rows.pos[i], rows.normal[i]);
+            let (x, n, two_sided) = (rows.pos[i], rows.normal[i], rows.two_sided[i]);
             let mut acc: Vec<(u32, f32)> = Vec::new();
             let mut rays = 0u64;
             // The occluder of this row's previous shadow ray, tried first (neighbouring
             // patches are mostly hidden by the same wall; the answer is the same).
             let mut last = crate::trace::bvh::Occluder::default();
             for (p, bpf) in patches.iter().zip(&bytes_per_ff) {
-                // The light origin behind the sample's plane: nothing.
-                if (p.origin - x).dot(n) < 0.0 {
+                // The light origin behind the sample's plane: nothing (a two-sided row
+                // looks both ways).
+                if !two_sided && (p.origin - x).dot(n) < 0.0 {
                     continue;
                 }
                 // q3map2's tests are in whole Quake units on map geometry that sits on them:
@@ -309,9 +312,11 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                 }
                 let pushed = if d > -push && d < push { x + p.normal * (push - d) } else { x };
                 let mut ff = form_factor(pushed, n, &p.verts);
-                // Seen from behind, a two-sided patch lights from its far side.
+                // Seen from behind a two-sided patch, or by a two-sided row from behind
+                // its own plane: the opposite form factor, and the shadow ray goes to a
+                // point 1 unit behind the patch (q3map2 either way).
                 let mut target = p.origin;
-                if ff < 0.0 && p.two_sided {
+                if ff < 0.0 && (p.two_sided || two_sided) {
                     ff = -ff;
                     target = p.origin - p.normal * (2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
                 }
@@ -322,7 +327,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 rays += 1;
-                if !crate::trace::visibility::visible_after(bvh, x, n, target, s, &mut last) {
+                if !crate::trace::visibility::visible_after(bvh, x, rows.facing(i, target - x), target, s, &mut last) {
                     continue;
                 }
                 let v = std::f32::consts::PI * ff * p.weight;

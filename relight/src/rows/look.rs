@@ -132,7 +132,7 @@ mod tests {
     }
 
     fn row(albedo: [f32; 3], e_lo: [f32; 3], e_hi: [f32; 3]) -> Row {
-        Row { vertex: 0, material: 0, texel: [u32::MAX; 3], pos: Vec3::ZERO, normal: Vec3::Z, albedo, lo: [0, 1, 2].map(|c| albedo[c] * e_lo[c]), hi: [0, 1, 2].map(|c| albedo[c] * e_hi[c]), weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE }
+        Row { vertex: 0, material: 0, texel: [u32::MAX; 3], pos: Vec3::ZERO, normal: Vec3::Z, albedo, lo: [0, 1, 2].map(|c| albedo[c] * e_lo[c]), hi: [0, 1, 2].map(|c| albedo[c] * e_hi[c]), weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: crate::rows::SolidAhead::NONE, two_sided: false }
     }
 
     #[test]

@@ -197,7 +197,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 if !pos.is_finite() || !hi.iter().all(|v| v.is_finite()) {
                     continue;
                 }
-                let base = Row { vertex: u32::MAX, material: mesh.tri_material[t], texel: [lm_index as u32, x as u32, y as u32], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area: texel_area, solid_ahead: SolidAhead::NONE };
+                let base = Row { vertex: u32::MAX, material: mesh.tri_material[t], texel: [lm_index as u32, x as u32, y as u32], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area: texel_area, solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided };
                 if censored {
                     // Every channel of a clamped texel is a lower bound (q3map2 kept its hue).
                     st.censored += 1;
@@ -221,7 +221,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
         let has = (0..3).any(|c| vertex_target.weight[v][c] > 0.0 || vertex_target.lower[v][c] > 0.0);
         if has {
             let t = vertex_target;
-            pb.push(Row { vertex: v as u32, material: mesh.v_material[v], texel: [u32::MAX; 3], pos: mesh.positions[v], normal: mesh.normals[v], albedo: t.albedo[v], lo: t.value[v], hi: t.hi[v], weight: t.weight[v], lower: t.lower[v], area: t.area[v], solid_ahead: SolidAhead::NONE });
+            pb.push(Row { vertex: v as u32, material: mesh.v_material[v], texel: [u32::MAX; 3], pos: mesh.positions[v], normal: mesh.normals[v], albedo: t.albedo[v], lo: t.value[v], hi: t.hi[v], weight: t.weight[v], lower: t.lower[v], area: t.area[v], solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided });
             st.vertex_rows += 1;
             texel_axes.push([Vec3::ZERO; 2]);
         }

@@ -107,6 +107,8 @@ pub struct Rows {
     pub area: Vec<f32>,
     /// Directions along which the row's sample point touches solid ([`SolidAhead`]).
     pub solid_ahead: Vec<SolidAhead>,
+    /// Whether the row receives light on both faces (see [`Rows::facing`]).
+    pub two_sided: Vec<bool>,
     pub sampling: Sampling,
     /// `sum A w mid^2`, the error's denominator (0 only without data).
     pub norm2: f64,
@@ -127,6 +129,7 @@ pub struct Row {
     pub lower: [f32; 3],
     pub area: f32,
     pub solid_ahead: SolidAhead,
+    pub two_sided: bool,
 }
 
 /// The axial planes of solid a sample point lies on (within q3map2's `TRACE_ON_EPSILON`)
@@ -192,6 +195,7 @@ impl Rows {
         self.lower.push(r.lower);
         self.area.push(r.area);
         self.solid_ahead.push(r.solid_ahead);
+        self.two_sided.push(r.two_sided);
     }
 
     pub fn row(&self, i: usize) -> Row {
@@ -208,6 +212,23 @@ impl Rows {
             lower: self.lower[i],
             area: self.area[i],
             solid_ahead: self.solid_ahead[i],
+            two_sided: self.two_sided[i],
+        }
+    }
+
+    /// The normal row `i` receives light from direction `d` (towards the emitter) with:
+    /// its own, or, on a two-sided row (q3map2's `twoSided` trace for a `cull none`
+    /// shader) with `d` behind it, its negation. Every emitter's cosine, its culling and
+    /// the side its shadow ray starts on follow this normal, so a two-sided row receives
+    /// `E(x, n) + E(x, -n)`: q3map2's `|cos|` with no behind-culling. Along the plane
+    /// (`n . d == 0`) the row's own normal.
+    #[inline]
+    pub fn facing(&self, i: usize, d: Vec3) -> Vec3 {
+        let n = self.normal[i];
+        if self.two_sided[i] && n.dot(d) < 0.0 {
+            -n
+        } else {
+            n
         }
     }
 
@@ -345,7 +366,7 @@ mod tests {
         let mut rows = Rows::new(Sampling::plain(1.0));
         for k in 0..10 {
             let v = k as f32;
-            rows.push(Row { vertex: k, material: 0, texel: [u32::MAX; 3], pos: Vec3::splat(v), normal: Vec3::Y, albedo: [v; 3], lo: [v; 3], hi: [v + 1.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: SolidAhead::NONE });
+            rows.push(Row { vertex: k, material: 0, texel: [u32::MAX; 3], pos: Vec3::splat(v), normal: Vec3::Y, albedo: [v; 3], lo: [v; 3], hi: [v + 1.0; 3], weight: [1.0; 3], lower: [0.0; 3], area: 1.0, solid_ahead: SolidAhead::NONE, two_sided: false });
         }
         rows.finish();
         let (sub, take) = rows.subsample(5, 1);

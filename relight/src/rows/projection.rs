@@ -295,8 +295,10 @@ pub fn project_cpu(scene: &Scene) -> (Target, TargetStats) {
     gather(scene, &sums, samples)
 }
 
-/// One row per mesh vertex that carries data (the thesis's target), with `sampling`.
-pub fn rows(mesh: &Mesh, tg: &Target, sampling: Sampling) -> Rows {
+/// One row per mesh vertex of `scene` that carries data (the thesis's target), with
+/// `sampling`.
+pub fn rows(scene: &Scene, tg: &Target, sampling: Sampling) -> Rows {
+    let mesh = &scene.mesh;
     let mut p = Rows::new(sampling);
     for v in 0..mesh.positions.len() {
         let has = (0..3).any(|c| tg.weight[v][c] > 0.0 || tg.lower[v][c] > 0.0);
@@ -314,6 +316,7 @@ pub fn rows(mesh: &Mesh, tg: &Target, sampling: Sampling) -> Rows {
                 lower: tg.lower[v],
                 area: tg.area[v],
                 solid_ahead: crate::rows::SolidAhead::NONE,
+                two_sided: scene.materials.get(mesh.v_material[v] as usize).is_some_and(|m| m.double_sided),
             });
         }
     }

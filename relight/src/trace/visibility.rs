@@ -4,7 +4,9 @@
 //!
 //! A bit is set when the light is in front of the row (`n . d > 0`) and the segment from
 //! `x + n ray_offset` to the light meets no occluder farther than the inhibit radius from
-//! its start ([`crate::rows::Sampling`]).
+//! its start ([`crate::rows::Sampling`]). `n` is the row's normal turned towards the
+//! light ([`Rows::facing`]): a two-sided row sees lights on both sides, each from the
+//! side it lies on.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -152,7 +154,7 @@ pub fn trace_sun(bvh: &Bvh, pb: &Rows, to_sun: Vec3, sky: &[bool]) -> Vec<u32> {
             let mut word = 0u32;
             for b in 0..32.min(n - w * 32) {
                 let i = w * 32 + b;
-                if sun_visible_from(bvh, pb.pos[i], pb.normal[i], to_sun, &pb.sampling, sky, pb.solid_ahead[i]) {
+                if sun_visible_from(bvh, pb.pos[i], pb.facing(i, to_sun), to_sun, &pb.sampling, sky, pb.solid_ahead[i]) {
                     word |= 1 << b;
                 }
             }
@@ -190,7 +192,7 @@ pub fn trace_light(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32) -> Vec<u32> {
                 if i >= n {
                     break;
                 }
-                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_after(bvh, pb.pos[i], pb.normal[i], light, &pb.sampling, &mut last) {
+                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_after(bvh, pb.pos[i], pb.facing(i, light - pb.pos[i]), light, &pb.sampling, &mut last) {
                     word |= 1 << b;
                 }
             }
