@@ -77,8 +77,8 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// then with q3map2's own patch mesh (convert's `lightmesh`): twosided 0.0040, lamp 0.0069
 /// (0.149 emitting from the drawn patch's triangles); on 2026-11-26 (third), receiver 0.0112
 /// (0.0960 receiving on the front face only: its lightmapped screen 0.096 -> 0.038, its
-/// vertex-lit one 0.49 -> 0.0003).
-const FIXTURES: [(&str, f64, &[&str]); 20] = [
+/// vertex-lit one 0.49 -> 0.0003), glass 0.0000 (0.28 one-sided).
+const FIXTURES: [(&str, f64, &[&str]); 21] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
     ("offgrid", 0.008, &[]),
@@ -88,6 +88,7 @@ const FIXTURES: [(&str, f64, &[&str]); 20] = [
     ("twosided", 0.008, &[]),
     ("lamp", 0.012, &[]),
     ("receiver", 0.015, &[]),
+    ("glass", 0.005, &[]),
     ("sun", 0.005, &[]),
     ("skylight", 0.045, &[]),
     ("skylight_bright", 0.05, &[]),
