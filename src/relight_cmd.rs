@@ -329,6 +329,13 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
                 "  target    {} luxels ({} censored: lower bounds) and {} vertex-lit vertices; {} sliver triangles without a luxel",
                 l.luxels, l.censored, l.vertex_rows, l.triangles_without_luxel
             );
+            if l.patch_control_points + l.patch_records_unmatched > 0 {
+                println!(
+                    "  vertex    {} rows at the control points of vertex-lit patches, where q3map2 lit them{}",
+                    l.patch_control_points,
+                    if l.patch_records_unmatched > 0 { format!("; {} patches changed since convert sample their vertices", l.patch_records_unmatched) } else { String::new() }
+                );
+            }
             let from = if l.solids_from == "map" { "the map's own solids" } else { "the faces (the file carries no usable `q3_solids`)" };
             println!("  samples   {} nudged out of solid, {} left out (in solid or enclosed); solid as {from}", l.nudged, l.buried);
         }

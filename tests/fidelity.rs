@@ -77,8 +77,9 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// then with q3map2's own patch mesh (convert's `lightmesh`): twosided 0.0040, lamp 0.0069
 /// (0.149 emitting from the drawn patch's triangles); on 2026-11-26 (third), receiver 0.0112
 /// (0.0960 receiving on the front face only: its lightmapped screen 0.096 -> 0.038, its
-/// vertex-lit one 0.49 -> 0.0003), glass 0.0000 (0.28 one-sided).
-const FIXTURES: [(&str, f64, &[&str]); 21] = [
+/// vertex-lit one 0.49 -> 0.0003), glass 0.0000 (0.28 one-sided); pad 0.0021 (0.587
+/// sampling the vertex-lit pad at its drawn vertices instead of its control points).
+const FIXTURES: [(&str, f64, &[&str]); 22] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
     ("offgrid", 0.008, &[]),
@@ -89,6 +90,7 @@ const FIXTURES: [(&str, f64, &[&str]); 21] = [
     ("lamp", 0.012, &[]),
     ("receiver", 0.015, &[]),
     ("glass", 0.005, &[]),
+    ("pad", 0.01, &[]),
     ("sun", 0.005, &[]),
     ("skylight", 0.045, &[]),
     ("skylight_bright", 0.05, &[]),
@@ -128,6 +130,10 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         // The lamp's quarters emit from q3map2's own mesh of them, which convert recorded.
         if name == "lamp" {
             assert_eq!(r["surfaces"][0]["q3map2_meshes"], 4, "{}", r["surfaces"]);
+        }
+        // The vertex-lit pad is sampled at its four quarters' control points, as q3map2 lit it.
+        if name == "pad" {
+            assert_eq!(r["luxel"]["patch_control_points"], 36, "{}", r["luxel"]);
         }
         if name == "gamma" {
             assert!(recorded.contains("-gamma 1.5"), "{recorded}");

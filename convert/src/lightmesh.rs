@@ -32,6 +32,17 @@
 //! - `area_m2`: the area of convert's own tessellation of the patch, by which relight
 //!   tells whether the mesh it reads still has this patch (an edit may have moved or
 //!   deleted it).
+//!
+//! **Vertex-lit patches.** q3map2 lights a patch without a lightmap at its control points
+//! only (`IlluminateVertexes` walks the surface's vertices, which for a patch are its
+//! control points, off the surface where it curves), and the game draws the colours
+//! interpolated over its tessellation by the Bezier basis. A lamp or a glowing pad made
+//! of patches with a light a few units above its centre is lit there at a handful of
+//! points, and the colours between are their blend, much flatter than the light's
+//! falloff. The record `q3_patch_vertices` holds, per drawn vertex-lit patch: `shader`,
+//! `size` (the control grid), `xyz`, `normal`, `rgb` (q3map2's bytes, three per point),
+//! `point_area_m2` (the drawn area each point's basis function covers,
+//! [`crate::patch::Tessellated::control_point_areas`]) and `area_m2` as above.
 
 use crate::bsp::{Bsp, DrawVert, SurfaceType};
 use crate::units;
@@ -310,6 +321,27 @@ pub fn q3map2_patch_lights(bsp: &Bsp, emitting: &[(usize, String, f64)], subdivi
             normal.extend(units::direction(v.normal.to_array()));
         }
         list.push(json!({ "shader": shader, "size": [mesh.width, mesh.height], "xyz": xyz, "normal": normal, "area_m2": area_m2 }));
+    }
+    (!list.is_empty()).then_some(Value::Array(list))
+}
+
+/// The `q3_patch_vertices` record (see the module docs): per drawn vertex-lit patch
+/// `(surface, shader name, drawn area m^2, drawn area per control point m^2)`, its
+/// control points as q3map2 lit them, or `None` when there are none. `scale` is metres
+/// per Quake unit.
+pub fn q3map2_patch_vertices(bsp: &Bsp, vertex_lit: &[(usize, String, f64, Vec<f64>)], scale: f64) -> Option<Value> {
+    let mut list = Vec::new();
+    for (si, shader, area_m2, point_area_m2) in vertex_lit {
+        let Some(s) = bsp.surfaces.get(*si) else { continue };
+        let verts = bsp.surface_verts(s);
+        let (w, h) = (s.patch_w as usize, s.patch_h as usize);
+        if verts.len() != w * h || point_area_m2.len() != verts.len() || !verts.iter().all(|v| v.xyz.iter().chain(&v.normal).all(|x| x.is_finite())) {
+            continue;
+        }
+        let xyz: Vec<f64> = verts.iter().flat_map(|v| units::direction(v.xyz.map(f64::from)).map(|x| x * scale)).collect();
+        let normal: Vec<f64> = verts.iter().flat_map(|v| units::direction(v.normal.map(f64::from))).collect();
+        let rgb: Vec<u8> = verts.iter().flat_map(|v| [v.color[0], v.color[1], v.color[2]]).collect();
+        list.push(json!({ "shader": shader, "size": [w, h], "xyz": xyz, "normal": normal, "rgb": rgb, "point_area_m2": point_area_m2, "area_m2": area_m2 }));
     }
     (!list.is_empty()).then_some(Value::Array(list))
 }

@@ -83,6 +83,43 @@ impl Tessellated {
     }
 }
 
+impl Tessellated {
+    /// The drawn area each control point's Bezier basis function covers, square Quake
+    /// units, row-major over the `ctrl_width x ctrl_height` control points: each
+    /// triangle's area in thirds to its corners, and a corner's third split over the
+    /// control points by their basis weights at its grid parameters (the mass-lumped area
+    /// of the interpolation the game draws vertex colours with). A corner inserted on a
+    /// boundary edge (past the grid) gives its third to the triangle's first grid corner.
+    /// The areas add up to [`Tessellated::area`].
+    pub fn control_point_areas(&self, ctrl_width: usize, ctrl_height: usize) -> Vec<f64> {
+        let mut out = vec![0.0; ctrl_width * ctrl_height];
+        let (nu, nv) = ((ctrl_width.max(3) - 1) / 2, (ctrl_height.max(3) - 1) / 2);
+        let grid = self.width * self.height;
+        let weights = |i: usize| -> Option<[(usize, f64); 9]> {
+            let (u, v) = (*self.u_params.get(i % self.width)?, *self.v_params.get(i / self.width)?);
+            let su = (u.floor().max(0.0) as usize).min(nu - 1);
+            let sv = (v.floor().max(0.0) as usize).min(nv - 1);
+            let (wu, wv) = (bernstein(u - su as f64), bernstein(v - sv as f64));
+            Some(std::array::from_fn(|k| ((2 * sv + k / 3) * ctrl_width + 2 * su + k % 3, wv[k / 3] * wu[k % 3])))
+        };
+        for t in self.indices.chunks_exact(3) {
+            let [a, b, c] = [t[0], t[1], t[2]].map(|i| self.verts.get(i as usize).map(pos));
+            let (Some(a), Some(b), Some(c)) = (a, b, c) else { continue };
+            let third = dot_self(cross(sub(b, a), sub(c, a))).sqrt() / 6.0;
+            let Some(first) = t.iter().map(|&i| i as usize).find(|&i| i < grid) else { continue };
+            for &i in t {
+                let i = if (i as usize) < grid { i as usize } else { first };
+                for (k, w) in weights(i).into_iter().flatten() {
+                    if let Some(o) = out.get_mut(k) {
+                        *o += third * w;
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
 fn dot_self(a: Pos) -> f64 {
     dot(a, a)
 }
@@ -724,6 +761,29 @@ mod tests {
         let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &curved }], 4.0, 1 << 20).unwrap();
         assert_eq!(t[0].width, 2, "straight direction stays at its ends");
         assert!(t[0].height > 4, "curved direction is subdivided: {}", t[0].height);
+    }
+
+    /// A flat patch is drawn as two triangles whose corners carry the colours of the four
+    /// corner control points: they share the whole area, the others none. A curved one
+    /// gives its middle control line a share; the shares always add up to the area.
+    #[test]
+    fn control_point_areas_add_up_to_the_drawn_area() {
+        let flat = arch(0.0, 64.0, 0.0);
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &flat }], 4.0, 1 << 20).unwrap();
+        let a = t[0].control_point_areas(3, 3);
+        assert!((t[0].area() - 8192.0).abs() < 1e-9);
+        // Thirds of each triangle: a corner on both triangles gets a third of the area,
+        // one on a single triangle a sixth.
+        for (k, &x) in a.iter().enumerate() {
+            let ok = if [0, 2, 6, 8].contains(&k) { [8192.0 / 6.0, 8192.0 / 3.0].iter().any(|e| (x - e).abs() < 1e-9) } else { x == 0.0 };
+            assert!(ok, "control point {k}: {x}");
+        }
+        assert!((a.iter().sum::<f64>() - 8192.0).abs() < 1e-9);
+        let curved = arch(0.0, 64.0, 128.0);
+        let t = tessellate_all(&[PatchInput { width: 3, height: 3, ctrl: &curved }], 1.0, 1 << 20).unwrap();
+        let a = t[0].control_point_areas(3, 3);
+        assert!((a.iter().sum::<f64>() - t[0].area()).abs() < 1e-6 * t[0].area());
+        assert!(a.iter().all(|&x| x >= 0.0) && a[3] > 0.1 * a[0], "{a:?}");
     }
 
     #[test]

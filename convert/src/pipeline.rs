@@ -340,6 +340,18 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
         .filter(|(si, _)| infos[bsp.surfaces[**si].shader as usize].light.surface.is_some())
         .map(|(si, t)| (*si, infos[bsp.surfaces[*si].shader as usize].name.clone(), t.area() * opts.scale * opts.scale))
         .collect();
+    // The vertex-lit patches, with their drawn area and each control point's share of it
+    // (m^2): q3map2 lit them at their control points only, which the scene carries too.
+    let vertex_lit_patches: Vec<(usize, String, f64, Vec<f64>)> = tess_of
+        .iter()
+        .filter(|(si, _)| bsp.surfaces[**si].lightmap == -3)
+        .map(|(si, t)| {
+            let s = &bsp.surfaces[*si];
+            let m2 = opts.scale * opts.scale;
+            let points = t.control_point_areas(s.patch_w as usize, s.patch_h as usize).into_iter().map(|a| a * m2).collect();
+            (*si, infos[s.shader as usize].name.clone(), t.area() * m2, points)
+        })
+        .collect();
     lap(&mut summary, "patches");
 
     // Geometry per (model, sky, material).
@@ -591,6 +603,9 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     let subdivisions = crate::lightmesh::subdivisions_of(cmdline);
     if let Some(meshes) = crate::lightmesh::q3map2_patch_lights(bsp, &emitting_patches, subdivisions, opts.scale) {
         extras["q3_patch_lights"] = meshes;
+    }
+    if let Some(points) = crate::lightmesh::q3map2_patch_vertices(bsp, &vertex_lit_patches, opts.scale) {
+        extras["q3_patch_vertices"] = points;
     }
     scene.extras = Some(extras);
     lap(&mut summary, "entities");

@@ -381,6 +381,9 @@ pub struct Scene {
     /// q3map2's light meshes of the emitting patches (scene extras `q3_patch_lights`,
     /// written by convert); empty when the file does not carry them.
     pub patch_lights: Vec<crate::model::patch_mesh::PatchMesh>,
+    /// The control points at which q3map2 lit the vertex-lit patches, with its bytes
+    /// (scene extras `q3_patch_vertices`; [`crate::rows::luxel`] samples there).
+    pub patch_vertices: Vec<crate::model::patch_mesh::PatchMesh>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

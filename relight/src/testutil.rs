@@ -106,5 +106,6 @@ pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene
         relit: None,
         solids: None,
         patch_lights: Vec::new(),
+        patch_vertices: Vec::new(),
     }
 }

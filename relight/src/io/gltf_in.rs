@@ -603,7 +603,16 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         }),
         None => Vec::new(),
     };
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights })
+    let patch_vertices = match scene_extras.get("q3_patch_vertices") {
+        Some(v) => crate::model::patch_mesh::from_extras(v, origin)
+            .and_then(|m| if m.iter().all(|p| !p.rgb.is_empty()) { Ok(m) } else { Err("a patch without `rgb`".into()) })
+            .unwrap_or_else(|why| {
+                skipped.push(format!("scene extras `q3_patch_vertices` left out: {why}"));
+                Vec::new()
+            }),
+        None => Vec::new(),
+    };
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights, patch_vertices })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).

@@ -1,5 +1,8 @@
 //! q3map2's light meshes of the emitting patches: the scene extras `q3_patch_lights`,
-//! written by convert (`q3gltf_convert::lightmesh`, which says how q3map2 builds them).
+//! written by convert (`q3gltf_convert::lightmesh`, which says how q3map2 builds them);
+//! and, in the same shape with q3map2's bytes and each point's drawn area, the control
+//! points at which q3map2 lit the vertex-lit patches (`q3_patch_vertices`; their rows are
+//! made in [`crate::rows::luxel`]).
 //!
 //! q3map2 made a patch's area lights from its own coarse mesh of the patch, not from the
 //! surface the game draws: per quad `(x, y)` of the mesh, with `r = (x + y) & 1`, the
@@ -31,6 +34,10 @@ pub struct PatchMesh {
     pub normal: Vec<Vec3>,
     /// Area of the drawn patch (convert's tessellation), m^2.
     pub area_m2: f64,
+    /// q3map2's bytes at each point (`q3_patch_vertices` only; empty otherwise).
+    pub rgb: Vec<[u8; 3]>,
+    /// The drawn area each point's Bezier basis covers, m^2 (`q3_patch_vertices` only).
+    pub point_area_m2: Vec<f32>,
 }
 
 /// Relative slack of the area test.
@@ -66,7 +73,23 @@ pub fn from_extras(v: &Value, origin: DVec3) -> Result<Vec<PatchMesh>, String> {
         let area_m2 = r.get("area_m2").and_then(Value::as_f64).filter(|a| a.is_finite() && *a >= 0.0).ok_or_else(|| at("`area_m2` is not a size".into()))?;
         let pos = xyz.chunks_exact(3).map(|p| (DVec3::new(p[0], p[1], p[2]) - origin).as_vec3()).collect();
         let normal = nrm.chunks_exact(3).map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32)).collect();
-        out.push(PatchMesh { shader, width, height, pos, normal, area_m2 });
+        // The vertex-lit record's bytes and areas, both or neither.
+        let (rgb, point_area_m2) = match (r.get("rgb"), r.get("point_area_m2")) {
+            (None, None) => (Vec::new(), Vec::new()),
+            (Some(_), Some(_)) => {
+                let bytes = numbers(r, "rgb", 3 * n).map_err(at)?;
+                if bytes.iter().any(|&b| b.fract() != 0.0 || !(0.0..=255.0).contains(&b)) {
+                    return Err(at("`rgb` holds a number that is not a byte".into()));
+                }
+                let areas = crate::trace::solids::numbers(r, "point_area_m2", 1).map_err(at)?;
+                if areas.len() != n || areas.iter().any(|&a| a < 0.0) {
+                    return Err(at(format!("`point_area_m2` is not {n} sizes")));
+                }
+                (bytes.chunks_exact(3).map(|c| [c[0] as u8, c[1] as u8, c[2] as u8]).collect(), areas.iter().map(|&a| a as f32).collect())
+            }
+            _ => return Err(at("`rgb` and `point_area_m2` come together".into())),
+        };
+        out.push(PatchMesh { shader, width, height, pos, normal, area_m2, rgb, point_area_m2 });
     }
     Ok(out)
 }
@@ -179,7 +202,7 @@ mod tests {
     fn quarter() -> PatchMesh {
         let c = Vec3::ZERO;
         let pos = vec![c, Vec3::new(0.0, 0.0, -32.0), c, Vec3::new(24.0, 0.0, -24.0), c, Vec3::new(32.0, 0.0, 0.0)];
-        PatchMesh { shader: "lamp".into(), width: 2, height: 3, normal: vec![Vec3::NEG_Y; 6], pos, area_m2: 0.0 }
+        PatchMesh { shader: "lamp".into(), width: 2, height: 3, normal: vec![Vec3::NEG_Y; 6], pos, area_m2: 0.0, rgb: Vec::new(), point_area_m2: Vec::new() }
     }
 
     #[test]
@@ -222,6 +245,8 @@ mod tests {
             pos: vec![Vec3::new(lo, y, lo), Vec3::new(lo, y, hi), Vec3::new(hi, y, lo), Vec3::new(hi, y, hi)],
             normal: vec![Vec3::Y; 4],
             area_m2: area,
+            rgb: Vec::new(),
+            point_area_m2: Vec::new(),
         };
         let records = [square(0.0, 10.0, 0.0, 100.0), square(4.0, 6.0, 0.3, 4.0)];
         let mut positions = Vec::new();
@@ -252,6 +277,20 @@ mod tests {
         let ok = serde_json::json!([{ "shader": "s", "size": [2, 2], "xyz": [0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0], "normal": [0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1], "area_m2": 1.0 }]);
         let m = from_extras(&ok, DVec3::new(1.0, 0.0, 0.0)).unwrap();
         assert_eq!(m[0].pos[1], Vec3::ZERO, "positions go to the stored frame");
+        assert!(m[0].rgb.is_empty() && m[0].point_area_m2.is_empty());
+        let mut lit = ok.clone();
+        lit[0]["rgb"] = serde_json::json!([1, 2, 3, 4, 5, 6, 7, 8, 9, 255, 0, 0]);
+        lit[0]["point_area_m2"] = serde_json::json!([0.25, 0.25, 0.25, 0.25]);
+        let m = from_extras(&lit, DVec3::ZERO).unwrap();
+        assert_eq!((m[0].rgb[3], m[0].point_area_m2[2]), ([255, 0, 0], 0.25));
+        for (key, bad) in [("rgb", serde_json::json!([1, 2, 3, 4, 5, 6, 7, 8, 9, 256, 0, 0])), ("rgb", serde_json::json!([1.5, 2, 3, 4, 5, 6, 7, 8, 9, 1, 0, 0])), ("point_area_m2", serde_json::json!([0.25, 0.25, -0.25, 0.25])), ("point_area_m2", serde_json::json!([0.25]))] {
+            let mut b = lit.clone();
+            b[0][key] = bad;
+            assert!(from_extras(&b, DVec3::ZERO).is_err(), "{b}");
+        }
+        let mut half = lit.clone();
+        half[0].as_object_mut().unwrap().remove("rgb");
+        assert!(from_extras(&half, DVec3::ZERO).is_err(), "bytes without areas");
         for bad in [
             serde_json::json!({}),
             serde_json::json!([{ "shader": "s", "size": [2, 2], "xyz": [0], "normal": [], "area_m2": 1.0 }]),

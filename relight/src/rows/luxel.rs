@@ -55,6 +55,12 @@ pub struct LuxelStats {
     pub censored: usize,
     /// Rows from vertex-lit materials (per-vertex colours).
     pub vertex_rows: usize,
+    /// Of those, rows at the control points of vertex-lit patches, where q3map2 lit them
+    /// (scene extras `q3_patch_vertices`, [`patch_control_point_rows`]).
+    pub patch_control_points: usize,
+    /// Vertex-lit patches whose record no longer matches the mesh (their vertices are
+    /// rows as any vertex-lit surface's).
+    pub patch_records_unmatched: usize,
     /// Lightmapped triangles whose footprint holds no texel centre (slivers).
     pub triangles_without_luxel: usize,
     /// Lightmapped triangles refused: degenerate or absurd lightmap UVs.
@@ -213,9 +219,10 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
             st.triangles_without_luxel += 1;
         }
     }
+    let (control_points, by_patch) = patch_control_point_rows(scene, vertex_target, &mut st);
     for v in 0..mesh.positions.len() {
         let mat = &scene.materials[mesh.v_material[v] as usize];
-        if mat.lighting != Lighting::Vertex || !(vertex_target.area[v] > 0.0) {
+        if mat.lighting != Lighting::Vertex || !(vertex_target.area[v] > 0.0) || by_patch[v] {
             continue;
         }
         let has = (0..3).any(|c| vertex_target.weight[v][c] > 0.0 || vertex_target.lower[v][c] > 0.0);
@@ -226,8 +233,69 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
             texel_axes.push([Vec3::ZERO; 2]);
         }
     }
+    for r in control_points {
+        pb.push(r);
+        st.vertex_rows += 1;
+        texel_axes.push([Vec3::ZERO; 2]);
+    }
     pb.finish();
     Luxels { rows: pb, texel_axes, stats: st }
+}
+
+/// The rows of the vertex-lit patches that the scene's `q3_patch_vertices` record still
+/// describes ([`crate::model::patch_mesh::match_triangles`]): one per control point, where
+/// q3map2 lit it (`IlluminateVertexes` samples a patch at its control points; the game
+/// draws their colours blended by the Bezier basis), with q3map2's own bytes and the drawn
+/// area the point's basis covers (a point the drawn mesh never shows has none, and no
+/// row). Albedo: that of the patch's mesh vertex nearest the point. Returns the rows and
+/// which mesh vertices they stand for (those get no row of their own).
+pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut LuxelStats) -> (Vec<Row>, Vec<bool>) {
+    let mesh = &scene.mesh;
+    let mut by_patch = vec![false; mesh.positions.len()];
+    let mut out = Vec::new();
+    if scene.patch_vertices.is_empty() {
+        return (out, by_patch);
+    }
+    let shader_of_tri: Vec<Option<&str>> = mesh
+        .tri_material
+        .iter()
+        .map(|&m| scene.materials.get(m as usize).filter(|m| m.lighting == Lighting::Vertex).map(|m| m.name.split('#').next().unwrap_or_default()))
+        .collect();
+    let matched = crate::model::patch_mesh::match_triangles(&scene.patch_vertices, &mesh.positions, &mesh.triangles, &shader_of_tri, scene.units_m);
+    for (pm, tris) in scene.patch_vertices.iter().zip(matched) {
+        let Some(tris) = tris else {
+            st.patch_records_unmatched += 1;
+            continue;
+        };
+        let verts: Vec<usize> = {
+            let mut v: Vec<usize> = tris.iter().flat_map(|&t| mesh.triangles[t as usize]).map(|i| i as usize).collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        let material = mesh.tri_material[tris[0] as usize];
+        let mat = &scene.materials[material as usize];
+        for &v in &verts {
+            by_patch[v] = true;
+        }
+        for k in 0..pm.pos.len() {
+            let area = pm.point_area_m2[k];
+            let Some(&near) = verts.iter().min_by(|&&a, &&b| (mesh.positions[a] - pm.pos[k]).length_squared().total_cmp(&(mesh.positions[b] - pm.pos[k]).length_squared())) else { continue };
+            if !(area > 0.0) || !pm.pos[k].is_finite() {
+                continue;
+            }
+            let albedo = vertex_target.albedo[near];
+            let bytes = pm.rgb[k];
+            let iv = bytes.map(|b| mat.interval(b));
+            let lo = [0, 1, 2].map(|c| albedo[c] * iv[c].0);
+            let hi = [0, 1, 2].map(|c| albedo[c] * iv[c].1);
+            let normal = pm.normal[k].try_normalize().unwrap_or(mesh.normals[near]);
+            let base = Row { vertex: u32::MAX, material, texel: [u32::MAX; 3], pos: pm.pos[k], normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area, solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided };
+            out.push(if mat.censored(&bytes) { Row { lo: [0.0; 3], hi: [0.0; 3], weight: [0.0; 3], lower: lo, ..base } } else { base });
+            st.patch_control_points += 1;
+        }
+    }
+    (out, by_patch)
 }
 
 /// Probe directions of [`buried`], in the frame of the row's normal `(t1, t2, n)`: the
@@ -479,7 +547,46 @@ mod tests {
         m.tri_source = vec![0, 1];
         m.reweld();
         let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
-        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new() }
+        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new() }
+    }
+
+    /// A vertex-lit 2 m x 1 m quad that q3map2 drew from a flat 3 x 3 patch: its rows are
+    /// the patch's control points with q3map2's bytes (those the drawn quad shows, its
+    /// corners), not the mesh's vertices; moved away from its record, the quad's vertices
+    /// are its rows again.
+    #[test]
+    fn a_vertex_lit_patch_is_sampled_at_its_control_points_while_its_record_holds() {
+        let mut scene = floor_scene();
+        scene.materials[0].name = "pad#vertex".into();
+        scene.materials[0].lighting = Lighting::Vertex;
+        scene.materials[0].lightmap = None;
+        let mut tg = Target::empty(4);
+        for v in 0..4 {
+            (tg.area[v], tg.albedo[v], tg.value[v], tg.hi[v], tg.weight[v]) = (0.5, [0.5; 3], [0.1; 3], [0.11; 3], [1.0; 3]);
+        }
+        let (mut pos, mut rgb, mut area) = (Vec::new(), Vec::new(), Vec::new());
+        for j in 0..3 {
+            for i in 0..3 {
+                pos.push(Vec3::new(i as f32, 0.0, 0.5 * j as f32));
+                rgb.push([(40 * i + 10 * j) as u8, 30, 20]);
+                area.push(if i != 1 && j != 1 { 0.5 } else { 0.0 });
+            }
+        }
+        let record = crate::model::patch_mesh::PatchMesh { shader: "pad".into(), width: 3, height: 3, pos, normal: vec![Vec3::Y; 9], area_m2: 2.0, rgb, point_area_m2: area };
+        scene.patch_vertices = vec![record];
+        let lx = rows(&scene, &tg, 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.stats.vertex_rows, lx.stats.patch_records_unmatched), (4, 4, 0));
+        let pb = &lx.rows;
+        assert!(pb.vertex.iter().all(|&v| v == u32::MAX), "no mesh vertex is a row");
+        // The corner (2, 0, 1): bytes (100, 30, 20) -> [b, b + 1) / 255 x 4, times the albedo.
+        let k = (0..pb.len()).find(|&i| pb.pos[i] == Vec3::new(2.0, 0.0, 1.0)).expect("the far corner is a row");
+        assert!((pb.lo[k][0] - 0.5 * 100.0 / 255.0 * 4.0).abs() < 1e-5 && (pb.hi[k][0] - 0.5 * 101.0 / 255.0 * 4.0).abs() < 1e-5, "{:?} {:?}", pb.lo[k], pb.hi[k]);
+        assert_eq!(pb.area[k], 0.5);
+        // Moved by a metre: the record no longer describes the mesh.
+        scene.mesh.positions.iter_mut().for_each(|p| p.x += 1.0);
+        let lx = rows(&scene, &tg, 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.stats.vertex_rows, lx.stats.patch_records_unmatched), (0, 4, 1));
+        assert!(lx.rows.vertex.iter().all(|&v| v != u32::MAX));
     }
 
     #[test]
