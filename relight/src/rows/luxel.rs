@@ -207,7 +207,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 if censored {
                     // Every channel of a clamped texel is a lower bound (q3map2 kept its hue).
                     st.censored += 1;
-                    pb.push(Row { lo: [0.0; 3], hi: [0.0; 3], weight: [0.0; 3], lower: lo, ..base });
+                    pb.push(base.lower_bound());
                 } else {
                     pb.push(base);
                 }
@@ -247,8 +247,9 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
 /// q3map2 lit it (`IlluminateVertexes` samples a patch at its control points; the game
 /// draws their colours blended by the Bezier basis), with q3map2's own bytes and the drawn
 /// area the point's basis covers (a point the drawn mesh never shows has none, and no
-/// row). Albedo: that of the patch's mesh vertex nearest the point. Returns the rows and
-/// which mesh vertices they stand for (those get no row of their own).
+/// row). Albedo: that of the patch's mesh vertex nearest the point. Only where
+/// `vertex_target` carries the patch's vertex colours, as the vertex rows. Returns the rows
+/// and which mesh vertices they stand for (those get no row of their own).
 pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut LuxelStats) -> (Vec<Row>, Vec<bool>) {
     let mesh = &scene.mesh;
     let mut by_patch = vec![false; mesh.positions.len()];
@@ -273,25 +274,29 @@ pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut 
             v.dedup();
             v
         };
+        // As the vertex rows: only where the target carries the vertex colours (a render
+        // of the model alone, `pipeline::render_on`, has luxel rows only).
+        if !verts.iter().any(|&v| vertex_target.area.get(v).is_some_and(|&a| a > 0.0)) {
+            continue;
+        }
         let material = mesh.tri_material[tris[0] as usize];
         let mat = &scene.materials[material as usize];
         for &v in &verts {
             by_patch[v] = true;
         }
         for k in 0..pm.pos.len() {
-            let area = pm.point_area_m2[k];
-            let Some(&near) = verts.iter().min_by(|&&a, &&b| (mesh.positions[a] - pm.pos[k]).length_squared().total_cmp(&(mesh.positions[b] - pm.pos[k]).length_squared())) else { continue };
+            let (Some(&area), Some(&bytes)) = (pm.point_area_m2.get(k), pm.rgb.get(k)) else { continue };
             if !(area > 0.0) || !pm.pos[k].is_finite() {
                 continue;
             }
-            let albedo = vertex_target.albedo[near];
-            let bytes = pm.rgb[k];
+            let Some(&near) = verts.iter().min_by(|&&a, &&b| (mesh.positions[a] - pm.pos[k]).length_squared().total_cmp(&(mesh.positions[b] - pm.pos[k]).length_squared())) else { continue };
+            let Some(&albedo) = vertex_target.albedo.get(near) else { continue };
             let iv = bytes.map(|b| mat.interval(b));
             let lo = [0, 1, 2].map(|c| albedo[c] * iv[c].0);
             let hi = [0, 1, 2].map(|c| albedo[c] * iv[c].1);
             let normal = pm.normal[k].try_normalize().unwrap_or(mesh.normals[near]);
             let base = Row { vertex: u32::MAX, material, texel: [u32::MAX; 3], pos: pm.pos[k], normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area, solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided };
-            out.push(if mat.censored(&bytes) { Row { lo: [0.0; 3], hi: [0.0; 3], weight: [0.0; 3], lower: lo, ..base } } else { base });
+            out.push(if mat.censored(&bytes) { base.lower_bound() } else { base });
             st.patch_control_points += 1;
         }
     }
@@ -582,6 +587,10 @@ mod tests {
         let k = (0..pb.len()).find(|&i| pb.pos[i] == Vec3::new(2.0, 0.0, 1.0)).expect("the far corner is a row");
         assert!((pb.lo[k][0] - 0.5 * 100.0 / 255.0 * 4.0).abs() < 1e-5 && (pb.hi[k][0] - 0.5 * 101.0 / 255.0 * 4.0).abs() < 1e-5, "{:?} {:?}", pb.lo[k], pb.hi[k]);
         assert_eq!(pb.area[k], 0.5);
+        // Without the vertex colours in the target (a render of the model alone), no
+        // vertex-lit rows at all.
+        let lx = rows(&scene, &Target::empty(4), 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.rows.len()), (0, 0));
         // Moved by a metre: the record no longer describes the mesh.
         scene.mesh.positions.iter_mut().for_each(|p| p.x += 1.0);
         let lx = rows(&scene, &tg, 3.0);

@@ -132,6 +132,14 @@ pub struct Row {
     pub two_sided: bool,
 }
 
+impl Row {
+    /// The row with its data a lower bound in every channel, at its interval's lower end
+    /// (a clamped byte: q3map2 kept its hue, so every channel is at least what it says).
+    pub fn lower_bound(self) -> Row {
+        Row { lo: [0.0; 3], hi: [0.0; 3], weight: [0.0; 3], lower: self.lo, ..self }
+    }
+}
+
 /// The axial planes of solid a sample point lies on (within q3map2's `TRACE_ON_EPSILON`)
 /// whose solid side is their positive side in Quake's axes, as bits: 1 `+x`, 2 `+y`,
 /// 4 `-z` (glTF axes: Quake's `+x`, `+z`, `+y`). q3map2's BSP puts a segment that starts
