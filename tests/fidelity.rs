@@ -78,8 +78,10 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// (0.149 emitting from the drawn patch's triangles); on 2026-11-26 (third), receiver 0.0112
 /// (0.0960 receiving on the front face only: its lightmapped screen 0.096 -> 0.038, its
 /// vertex-lit one 0.49 -> 0.0003), glass 0.0000 (0.28 one-sided); pad 0.0021 (0.587
-/// sampling the vertex-lit pad at its drawn vertices instead of its control points).
-const FIXTURES: [(&str, f64, &[&str]); 22] = [
+/// sampling the vertex-lit pad at its drawn vertices instead of its control points); on
+/// 2026-11-26 (fourth), column 0.0018 (0.1541 sampling the curved patch at its texel
+/// centres on the drawn surface instead of q3map2's own sample points).
+const FIXTURES: [(&str, f64, &[&str]); 23] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
     ("offgrid", 0.008, &[]),
@@ -91,6 +93,7 @@ const FIXTURES: [(&str, f64, &[&str]); 22] = [
     ("receiver", 0.015, &[]),
     ("glass", 0.005, &[]),
     ("pad", 0.01, &[]),
+    ("column", 0.005, &[]),
     ("sun", 0.005, &[]),
     ("skylight", 0.045, &[]),
     ("skylight_bright", 0.05, &[]),
@@ -134,6 +137,11 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         // The vertex-lit pad is sampled at its four quarters' control points, as q3map2 lit it.
         if name == "pad" {
             assert_eq!(r["luxel"]["patch_control_points"], 36, "{}", r["luxel"]);
+        }
+        // The half column's luxels are sampled where q3map2 sampled them, all of them.
+        if name == "column" {
+            assert_eq!(r["luxel"]["patch_luxels"], 234, "{}", r["luxel"]);
+            assert_eq!(r["luxel"]["patch_luxel_records_unmatched"], 0, "{}", r["luxel"]);
         }
         if name == "gamma" {
             assert!(recorded.contains("-gamma 1.5"), "{recorded}");

@@ -15,7 +15,8 @@
 //! * [`solids`]: where q3map2 found solid, for relight's samples.
 //! * [`entities`]: the entity lump; [`mapfile`]: the entities of a `.map` source.
 //! * [`patch`]: adaptive, stitched Bezier patch tessellation; [`lightmesh`]: the coarser
-//!   mesh q3map2's light stage made of a patch (what its surface lights emit from).
+//!   mesh q3map2's light stage made of a patch (what its surface lights emit from);
+//!   [`patch_luxels`]: where q3map2 sampled a curved patch's luxels on that mesh.
 //! * [`overlap`]: opaque faces overlapping on one plane, cut so a ray tracer sees one.
 //! * [`lightmaps`], [`atlas`]: lightmap pages and their packing.
 //! * [`units`]: axes, scale and the radiometric conversions.
@@ -35,6 +36,7 @@ pub mod material;
 pub mod output;
 pub mod overlap;
 pub mod patch;
+pub mod patch_luxels;
 pub mod pipeline;
 pub mod scene;
 pub mod shader;

@@ -22,7 +22,9 @@
 //!    whose points all lie within 0.1 unit of the lines through their neighbours goes.
 //!
 //! Normals are halved and renormalised with the positions in step 2 (a zero result keeps
-//! the first normal, as `LerpDrawVert`), and steps 3-4 leave them.
+//! the first normal, as `LerpDrawVert`), and steps 3-4 leave them. Lightmap coordinates
+//! follow the positions through steps 2-3 (q3map2 maps a curved patch's luxels on this
+//! same mesh, [`crate::patch_luxels`]).
 //!
 //! The record convert writes into the scene's extras, `q3_patch_lights`, is a list with
 //! one entry per drawn patch whose shader emits (glTF axes, metres):
@@ -46,7 +48,7 @@
 
 use crate::bsp::{Bsp, DrawVert, SurfaceType};
 use crate::units;
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use serde_json::{json, Value};
 use std::collections::HashMap;
 
@@ -79,18 +81,21 @@ fn normalized(a: P) -> (P, f64) {
 pub struct Vert {
     pub xyz: P,
     pub normal: P,
+    /// Lightmap coordinates, as the control points' (page-normalised in a BSP; the
+    /// mesh interpolates them as q3map2 does, [`crate::patch_luxels`] maps luxels by them).
+    pub lm: DVec2,
 }
 
 impl Vert {
     fn of(v: &DrawVert) -> Vert {
-        Vert { xyz: DVec3::from(v.xyz.map(f64::from)), normal: DVec3::from(v.normal.map(f64::from)) }
+        Vert { xyz: DVec3::from(v.xyz.map(f64::from)), normal: DVec3::from(v.normal.map(f64::from)), lm: DVec2::from(v.lightmap.map(f64::from)) }
     }
 }
 
-/// q3map2's `LerpDrawVert` (position and normal).
-fn lerp(a: &Vert, b: &Vert) -> Vert {
+/// q3map2's `LerpDrawVert` (position, lightmap coordinates and normal).
+pub fn lerp(a: &Vert, b: &Vert) -> Vert {
     let (n, l) = normalized(mid(a.normal, b.normal));
-    Vert { xyz: mid(a.xyz, b.xyz), normal: if l == 0.0 { a.normal } else { n } }
+    Vert { xyz: mid(a.xyz, b.xyz), normal: if l == 0.0 { a.normal } else { n }, lm: (a.lm + b.lm) * 0.5 }
 }
 
 /// The light mesh of one patch: `width x height` vertices, row-major.
@@ -246,14 +251,17 @@ pub fn light_mesh(ctrl: &[DrawVert], w: usize, h: usize, iterations: u32) -> Opt
     }
     // `PutMeshOnCurve`: odd rows, then odd columns.
     let on_curve = |p: P, a: P, b: P| mid(mid(p, a), mid(p, b));
+    let on_curve_lm = |p: DVec2, a: DVec2, b: DVec2| ((p + a) * 0.5 + (p + b) * 0.5) * 0.5;
     for i in 0..width {
         for j in (1..height.saturating_sub(1)).step_by(2) {
             rows[j][i].xyz = on_curve(rows[j][i].xyz, rows[j + 1][i].xyz, rows[j - 1][i].xyz);
+            rows[j][i].lm = on_curve_lm(rows[j][i].lm, rows[j + 1][i].lm, rows[j - 1][i].lm);
         }
     }
     for row in &mut rows {
         for i in (1..width.saturating_sub(1)).step_by(2) {
             row[i].xyz = on_curve(row[i].xyz, row[i + 1].xyz, row[i - 1].xyz);
+            row[i].lm = on_curve_lm(row[i].lm, row[i + 1].lm, row[i - 1].lm);
         }
     }
     // `RemoveLinearMeshColumnsRows`: columns, then rows.

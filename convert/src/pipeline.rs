@@ -340,6 +340,22 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
         .filter(|(si, _)| infos[bsp.surfaces[**si].shader as usize].light.surface.is_some())
         .map(|(si, t)| (*si, infos[bsp.surfaces[*si].shader as usize].name.clone(), t.area() * opts.scale * opts.scale))
         .collect();
+    // The lightmapped patches, with their drawn area and their page's place: q3map2
+    // sampled a curved one's luxels on its own mesh of it, which the scene carries too.
+    let lit_patches: Vec<crate::patch_luxels::LitPatch> = tess_of
+        .iter()
+        .filter_map(|(si, t)| {
+            let s = &bsp.surfaces[*si];
+            let pl = &atlas.placements[pages.page_of(s.lightmap)?];
+            Some(crate::patch_luxels::LitPatch {
+                surface: *si,
+                shader: infos[s.shader as usize].name.clone(),
+                area_m2: t.area() * opts.scale * opts.scale,
+                page_origin: [pl.x, pl.y],
+                page_size: [pl.width, pl.height],
+            })
+        })
+        .collect();
     // The vertex-lit patches, with their drawn area and each control point's share of it
     // (m^2): q3map2 lit them at their control points only, which the scene carries too.
     let vertex_lit_patches: Vec<(usize, String, f64, Vec<f64>)> = tess_of
@@ -606,6 +622,11 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
     }
     if let Some(points) = crate::lightmesh::q3map2_patch_vertices(bsp, &vertex_lit_patches, opts.scale) {
         extras["q3_patch_vertices"] = points;
+    }
+    if crate::patch_luxels::super_sample_of(cmdline) == 1 {
+        if let Some(luxels) = crate::patch_luxels::q3map2_patch_luxels(bsp, &lit_patches, subdivisions, opts.scale) {
+            extras["q3_patch_luxels"] = luxels;
+        }
     }
     scene.extras = Some(extras);
     lap(&mut summary, "entities");

@@ -146,7 +146,7 @@ mod tests {
         let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
         let dark = Material { name: "floor".into(), lighting: Lighting::None, ..lit.clone() };
         let tex = Texture { width: 1, height: 1, rgba8: vec![255; 4], wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
-        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new() };
+        let scene = Scene { mesh: m, materials: vec![lit, dark], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new(), patch_luxels: Vec::new() };
         let bvh = Bvh::build(&scene.mesh);
         let rows = |pos: Vec3, n: Vec3, albedo: [f32; 3]| {
             let mut r = Rows::new(Sampling::plain(2.0));
@@ -188,7 +188,7 @@ mod tests {
         m.tri_source = vec![0, 1];
         m.reweld();
         let lit = Material { name: "wall".into(), albedo: None, albedo_factor: [1.0; 4], lighting: Lighting::Vertex, lightmap: None, overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
-        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new() };
+        let scene = Scene { mesh: m, materials: vec![lit], textures: Vec::new(), lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new(), patch_luxels: Vec::new() };
         let bvh = Bvh::build(&scene.mesh);
         let mut pb = Rows::new(Sampling::plain(10.0));
         for k in 0..200 {

@@ -384,6 +384,9 @@ pub struct Scene {
     /// The control points at which q3map2 lit the vertex-lit patches, with its bytes
     /// (scene extras `q3_patch_vertices`; [`crate::rows::luxel`] samples there).
     pub patch_vertices: Vec<crate::model::patch_mesh::PatchMesh>,
+    /// Where q3map2 sampled the luxels of the curved lightmapped patches (scene extras
+    /// `q3_patch_luxels`; [`crate::rows::luxel`] moves those rows there).
+    pub patch_luxels: Vec<crate::model::patch_mesh::PatchMesh>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

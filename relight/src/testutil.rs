@@ -107,5 +107,6 @@ pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene
         solids: None,
         patch_lights: Vec::new(),
         patch_vertices: Vec::new(),
+        patch_luxels: Vec::new(),
     }
 }

@@ -612,7 +612,16 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             }),
         None => Vec::new(),
     };
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights, patch_vertices })
+    let patch_luxels = match scene_extras.get("q3_patch_luxels") {
+        Some(v) => crate::model::patch_mesh::from_extras(v, origin)
+            .and_then(|m| if m.iter().all(|p| !p.luxels.is_empty()) { Ok(m) } else { Err("a patch without luxels".into()) })
+            .unwrap_or_else(|why| {
+                skipped.push(format!("scene extras `q3_patch_luxels` left out: {why}"));
+                Vec::new()
+            }),
+        None => Vec::new(),
+    };
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights, patch_vertices, patch_luxels })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).

@@ -19,7 +19,7 @@
 //! their area is the record's `area_m2` (0.5%). Otherwise relight emits from the
 //! triangles themselves, as without a record.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use serde_json::Value;
 
 /// One emitting patch's light mesh, in the scene's stored frame (metres).
@@ -38,6 +38,18 @@ pub struct PatchMesh {
     pub rgb: Vec<[u8; 3]>,
     /// The drawn area each point's Bezier basis covers, m^2 (`q3_patch_vertices` only).
     pub point_area_m2: Vec<f32>,
+    /// Where q3map2 sampled the patch's luxels (`q3_patch_luxels` only; empty otherwise).
+    pub luxels: Vec<PatchLuxel>,
+}
+
+/// One luxel of a curved lightmapped patch as q3map2 sampled it (convert's
+/// `patch_luxels` says how): its texel in the patch's lightmap atlas image, and the
+/// sample's point (the stored frame, metres, q3map2's offset included) and unit normal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PatchLuxel {
+    pub texel: [u32; 2],
+    pub pos: Vec3,
+    pub normal: Vec3,
 }
 
 /// Relative slack of the area test.
@@ -89,7 +101,31 @@ pub fn from_extras(v: &Value, origin: DVec3) -> Result<Vec<PatchMesh>, String> {
             }
             _ => return Err(at("`rgb` and `point_area_m2` come together".into())),
         };
-        out.push(PatchMesh { shader, width, height, pos, normal, area_m2, rgb, point_area_m2 });
+        // The luxel samples, all three lists or none.
+        let luxels = match (r.get("luxel_texel"), r.get("luxel_xyz"), r.get("luxel_normal")) {
+            (None, None, None) => Vec::new(),
+            (Some(_), Some(_), Some(_)) => {
+                let texel = crate::trace::solids::numbers(r, "luxel_texel", 2).map_err(at)?;
+                let n = texel.len() / 2;
+                let xyz = numbers(r, "luxel_xyz", 3 * n).map_err(at)?;
+                let nrm = numbers(r, "luxel_normal", 3 * n).map_err(at)?;
+                if texel.iter().any(|&t| t.fract() != 0.0 || !(0.0..=f64::from(u16::MAX)).contains(&t)) {
+                    return Err(at("`luxel_texel` holds a number that is not a texel".into()));
+                }
+                let mut l = Vec::with_capacity(n);
+                for k in 0..n {
+                    let normal = Vec3::new(nrm[3 * k] as f32, nrm[3 * k + 1] as f32, nrm[3 * k + 2] as f32);
+                    let Some(normal) = normal.try_normalize() else {
+                        return Err(at(format!("luxel {k}'s normal is zero")));
+                    };
+                    let pos = (DVec3::new(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2]) - origin).as_vec3();
+                    l.push(PatchLuxel { texel: [texel[2 * k] as u32, texel[2 * k + 1] as u32], pos, normal });
+                }
+                l
+            }
+            _ => return Err(at("`luxel_texel`, `luxel_xyz` and `luxel_normal` come together".into())),
+        };
+        out.push(PatchMesh { shader, width, height, pos, normal, area_m2, rgb, point_area_m2, luxels });
     }
     Ok(out)
 }
@@ -193,6 +229,55 @@ pub fn match_triangles(meshes: &[PatchMesh], positions: &[Vec3], triangles: &[[u
         .collect()
 }
 
+/// Slack of the luxel records' bounds test, Quake units: the drawn curve strays outside
+/// the light mesh's bounds by its chords' sag.
+const LUXEL_BOUNDS_SLACK_UNITS: f32 = 16.0;
+
+/// Which triangles each `q3_patch_luxels` record stands for: those of its shader within
+/// its bounds (loosely) whose lightmap footprint's centre (`texel_of_tri`, texels of the
+/// triangle's lightmap image) lies in the box of the record's texels, half a texel of
+/// slack; `Some` only while their area is the record's (0.5%). A curved patch has its
+/// lightmap block to itself, so neighbouring patches of one shader (a pipe's halves, a
+/// trim's pieces), which the nearest-mesh rule of [`match_triangles`] confuses where the
+/// mesh's chords sag, are told apart by their texels.
+pub fn match_triangles_by_texel(meshes: &[PatchMesh], positions: &[Vec3], triangles: &[[u32; 3]], shader_of_tri: &[Option<&str>], texel_of_tri: &[Vec2], units_m: f32) -> Vec<Option<Vec<u32>>> {
+    let boxes: Vec<(Vec3, Vec3)> = meshes.iter().map(|m| m.bounds(LUXEL_BOUNDS_SLACK_UNITS * units_m)).collect();
+    let texel_boxes: Vec<(Vec2, Vec2)> = meshes
+        .iter()
+        .map(|m| {
+            let (lo, hi) = m.luxels.iter().fold((Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY)), |(lo, hi), l| {
+                let t = Vec2::new(l.texel[0] as f32, l.texel[1] as f32);
+                (lo.min(t), hi.max(t))
+            });
+            // Texel x covers [x, x + 1); half a texel of slack around the block.
+            (lo - Vec2::splat(0.5), hi + Vec2::splat(1.5))
+        })
+        .collect();
+    let mut by_shader: std::collections::HashMap<&str, Vec<usize>> = std::collections::HashMap::new();
+    for (k, m) in meshes.iter().enumerate() {
+        by_shader.entry(m.shader.as_str()).or_default().push(k);
+    }
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); meshes.len()];
+    let mut area = vec![0.0f64; meshes.len()];
+    for (t, tri) in triangles.iter().enumerate() {
+        let Some(shader) = shader_of_tri.get(t).copied().flatten() else { continue };
+        let (Some(ks), Some(&c)) = (by_shader.get(shader), texel_of_tri.get(t)) else { continue };
+        let p = tri.map(|i| positions[i as usize]);
+        let inside = |(lo, hi): (Vec3, Vec3)| p.iter().all(|q| q.cmpge(lo).all() && q.cmple(hi).all());
+        if let Some(&k) = ks.iter().find(|&&k| c.cmpge(texel_boxes[k].0).all() && c.cmple(texel_boxes[k].1).all() && inside(boxes[k])) {
+            members[k].push(t as u32);
+            let [a, b, c] = p.map(|q| q.as_dvec3());
+            area[k] += 0.5 * (b - a).cross(c - a).length();
+        }
+    }
+    members
+        .into_iter()
+        .zip(area)
+        .zip(meshes)
+        .map(|((tris, a), m)| ((a - m.area_m2).abs() <= AREA_TOLERANCE * m.area_m2 + 1e-12 && !tris.is_empty()).then_some(tris))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -202,7 +287,7 @@ mod tests {
     fn quarter() -> PatchMesh {
         let c = Vec3::ZERO;
         let pos = vec![c, Vec3::new(0.0, 0.0, -32.0), c, Vec3::new(24.0, 0.0, -24.0), c, Vec3::new(32.0, 0.0, 0.0)];
-        PatchMesh { shader: "lamp".into(), width: 2, height: 3, normal: vec![Vec3::NEG_Y; 6], pos, area_m2: 0.0, rgb: Vec::new(), point_area_m2: Vec::new() }
+        PatchMesh { shader: "lamp".into(), width: 2, height: 3, normal: vec![Vec3::NEG_Y; 6], pos, area_m2: 0.0, rgb: Vec::new(), point_area_m2: Vec::new(), luxels: Vec::new() }
     }
 
     #[test]
@@ -239,6 +324,7 @@ mod tests {
         // its middle (within the bounds' slack): the big one's middle triangles lie within
         // both bounds but on the big one.
         let square = |lo: f32, hi: f32, y: f32, area: f64| PatchMesh {
+            luxels: Vec::new(),
             shader: "s".into(),
             width: 2,
             height: 2,
@@ -291,6 +377,27 @@ mod tests {
         let mut half = lit.clone();
         half[0].as_object_mut().unwrap().remove("rgb");
         assert!(from_extras(&half, DVec3::ZERO).is_err(), "bytes without areas");
+        // The luxel samples: texels, points (to the stored frame) and unit normals.
+        let mut lux = ok.clone();
+        lux[0]["luxel_texel"] = serde_json::json!([3, 4, 9, 6]);
+        lux[0]["luxel_xyz"] = serde_json::json!([1, 2, 3, 4, 5, 6]);
+        lux[0]["luxel_normal"] = serde_json::json!([0, 2, 0, 0, 0, 1]);
+        let m = from_extras(&lux, DVec3::new(1.0, 0.0, 0.0)).unwrap();
+        assert_eq!(m[0].luxels, vec![PatchLuxel { texel: [3, 4], pos: Vec3::new(0.0, 2.0, 3.0), normal: Vec3::Y }, PatchLuxel { texel: [9, 6], pos: Vec3::new(3.0, 5.0, 6.0), normal: Vec3::Z }]);
+        for (key, bad) in [
+            ("luxel_texel", serde_json::json!([3, 4, 9])),
+            ("luxel_texel", serde_json::json!([3, 4.5, 9, 6])),
+            ("luxel_texel", serde_json::json!([3, -4, 9, 6])),
+            ("luxel_xyz", serde_json::json!([1, 2, 3])),
+            ("luxel_normal", serde_json::json!([0, 0, 0, 0, 0, 1])),
+        ] {
+            let mut b = lux.clone();
+            b[0][key] = bad;
+            assert!(from_extras(&b, DVec3::ZERO).is_err(), "{b}");
+        }
+        let mut half = lux.clone();
+        half[0].as_object_mut().unwrap().remove("luxel_normal");
+        assert!(from_extras(&half, DVec3::ZERO).is_err(), "points without normals");
         for bad in [
             serde_json::json!({}),
             serde_json::json!([{ "shader": "s", "size": [2, 2], "xyz": [0], "normal": [], "area_m2": 1.0 }]),

@@ -61,6 +61,12 @@ pub struct LuxelStats {
     /// Vertex-lit patches whose record no longer matches the mesh (their vertices are
     /// rows as any vertex-lit surface's).
     pub patch_records_unmatched: usize,
+    /// Luxel rows of curved lightmapped patches at q3map2's own sample points (scene
+    /// extras `q3_patch_luxels`, [`patch_luxel_samples`]).
+    pub patch_luxels: usize,
+    /// Curved lightmapped patches whose record no longer matches the mesh (their luxels
+    /// are sampled on the mesh, at the texel centres).
+    pub patch_luxel_records_unmatched: usize,
     /// Lightmapped triangles whose footprint holds no texel centre (slivers).
     pub triangles_without_luxel: usize,
     /// Lightmapped triangles refused: degenerate or absurd lightmap UVs.
@@ -104,6 +110,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
     // Which texels are taken, per lightmap texture (allocated for lightmaps only).
     let mut claimed: Vec<Option<Vec<bool>>> = vec![None; scene.textures.len()];
     let mut texel_axes = Vec::new();
+    let patch_samples = patch_luxel_samples(scene, &mut st);
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let mat = &scene.materials[mesh.tri_material[t] as usize];
         if mat.lighting != Lighting::Lightmap {
@@ -172,9 +179,18 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 }
                 taken[y * w + x] = true;
                 let bf = b.map(|v| v as f32);
-                let normal = (na * bf[0] + nb * bf[1] + nc * bf[2]).try_normalize().unwrap_or(face_normal);
-                // q3map2's sample origin: the surface point pushed off along the normal.
-                let pos = pa * bf[0] + pb_ * bf[1] + pc * bf[2] + normal * sample_offset;
+                let (pos, normal) = match patch_samples.get(&(t as u32)).and_then(|m| m.get(&[x as u32, y as u32])) {
+                    // Where q3map2 sampled a curved patch's luxel (its offset included).
+                    Some(&(pos, normal)) => {
+                        st.patch_luxels += 1;
+                        (pos, normal)
+                    }
+                    None => {
+                        let normal = (na * bf[0] + nb * bf[1] + nc * bf[2]).try_normalize().unwrap_or(face_normal);
+                        // q3map2's sample origin: the surface point pushed off along the normal.
+                        (pa * bf[0] + pb_ * bf[1] + pc * bf[2] + normal * sample_offset, normal)
+                    }
+                };
                 // Albedo: mean over the texel's square, mapped affinely to TEXCOORD_0.
                 let mut alb = [0.0f32; 3];
                 let k = ALBEDO_SAMPLES;
@@ -240,6 +256,51 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
     }
     pb.finish();
     Luxels { rows: pb, texel_axes, stats: st }
+}
+
+/// A curved patch's luxel samples by texel (`[x, y]` in its lightmap image): point, normal.
+type LuxelSamples = std::collections::HashMap<[u32; 2], (Vec3, Vec3)>;
+
+/// Where q3map2 sampled the luxels of the curved lightmapped patches that the scene's
+/// `q3_patch_luxels` record still describes ([`crate::model::patch_mesh::match_triangles`]),
+/// per triangle of each such patch. q3map2 mapped a curved patch's luxels on its own
+/// coarse mesh of it, each at the first point of that mesh's subdivision that landed in
+/// the luxel (convert's `patch_luxels`), up to half a luxel from the texel's centre on
+/// the drawn surface.
+fn patch_luxel_samples(scene: &Scene, st: &mut LuxelStats) -> std::collections::HashMap<u32, std::rc::Rc<LuxelSamples>> {
+    let mut out = std::collections::HashMap::new();
+    if scene.patch_luxels.is_empty() {
+        return out;
+    }
+    let mesh = &scene.mesh;
+    let shader_of_tri: Vec<Option<&str>> = mesh
+        .tri_material
+        .iter()
+        .map(|&m| scene.materials.get(m as usize).filter(|m| m.lighting == Lighting::Lightmap).map(|m| m.name.split('#').next().unwrap_or_default()))
+        .collect();
+    // Each triangle's lightmap footprint's centre, texels of its lightmap image.
+    let texel_of_tri: Vec<Vec2> = mesh
+        .triangles
+        .iter()
+        .zip(&mesh.tri_material)
+        .map(|(tri, &m)| {
+            let size = scene.materials.get(m as usize).and_then(|m| m.lightmap).and_then(|i| scene.textures.get(i)).map_or(Vec2::ZERO, |t| Vec2::new(t.width as f32, t.height as f32));
+            tri.iter().map(|&v| mesh.uv1[v as usize]).sum::<Vec2>() / 3.0 * size
+        })
+        .collect();
+    let matched = crate::model::patch_mesh::match_triangles_by_texel(&scene.patch_luxels, &mesh.positions, &mesh.triangles, &shader_of_tri, &texel_of_tri, scene.units_m);
+    for (pm, tris) in scene.patch_luxels.iter().zip(matched) {
+        let Some(tris) = tris else {
+            st.patch_luxel_records_unmatched += 1;
+            continue;
+        };
+        let samples: LuxelSamples = pm.luxels.iter().filter(|l| l.pos.is_finite() && l.normal.is_finite()).map(|l| (l.texel, (l.pos, l.normal))).collect();
+        let samples = std::rc::Rc::new(samples);
+        for t in tris {
+            out.insert(t, samples.clone());
+        }
+    }
+    out
 }
 
 /// The rows of the vertex-lit patches that the scene's `q3_patch_vertices` record still
@@ -552,7 +613,7 @@ mod tests {
         m.tri_source = vec![0, 1];
         m.reweld();
         let mat = Material { name: "floor".into(), albedo: None, albedo_factor: [0.5, 0.25, 1.0, 1.0], lighting: Lighting::Lightmap, lightmap: Some(0), overbright_bits: 2, lightmap_gamma: 1.0, censor_byte: crate::scene::CENSOR_BYTE, sky: false, double_sided: false, casts_shadow: true, emitter: None, sky_lights: Vec::new(), emission: [0.0; 3] };
-        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new() }
+        Scene { mesh: m, materials: vec![mat], textures: vec![tex], lights: Vec::new(), suns: Vec::new(), origin: glam::DVec3::ZERO, skipped: Vec::new(), units_m: 0.0254, compile: Default::default(), relit: None, solids: None, patch_lights: Vec::new(), patch_vertices: Vec::new(), patch_luxels: Vec::new() }
     }
 
     /// A vertex-lit 2 m x 1 m quad that q3map2 drew from a flat 3 x 3 patch: its rows are
@@ -577,7 +638,7 @@ mod tests {
                 area.push(if i != 1 && j != 1 { 0.5 } else { 0.0 });
             }
         }
-        let record = crate::model::patch_mesh::PatchMesh { shader: "pad".into(), width: 3, height: 3, pos, normal: vec![Vec3::Y; 9], area_m2: 2.0, rgb, point_area_m2: area };
+        let record = crate::model::patch_mesh::PatchMesh { shader: "pad".into(), width: 3, height: 3, pos, normal: vec![Vec3::Y; 9], area_m2: 2.0, rgb, point_area_m2: area, luxels: Vec::new() };
         scene.patch_vertices = vec![record];
         let lx = rows(&scene, &tg, 3.0);
         assert_eq!((lx.stats.patch_control_points, lx.stats.vertex_rows, lx.stats.patch_records_unmatched), (4, 4, 0));
@@ -596,6 +657,41 @@ mod tests {
         let lx = rows(&scene, &tg, 3.0);
         assert_eq!((lx.stats.patch_control_points, lx.stats.vertex_rows, lx.stats.patch_records_unmatched), (0, 4, 1));
         assert!(lx.rows.vertex.iter().all(|&v| v != u32::MAX));
+    }
+
+    /// The floor quad as a curved patch's luxels: two of its texels have q3map2's own
+    /// sample points in the record, and their rows are there (with the record's normal);
+    /// the other texels stay at their centres. Moved away from its record, every row is
+    /// at its texel's centre again.
+    #[test]
+    fn a_curved_patch_is_sampled_where_q3map2_sampled_it_while_its_record_holds() {
+        use crate::model::patch_mesh::{PatchLuxel, PatchMesh};
+        let mut scene = floor_scene();
+        let at_centre = rows(&scene, &Target::empty(4), 3.0);
+        let tilted = Vec3::new(0.0, 1.0, 0.2).normalize();
+        let luxels = vec![
+            PatchLuxel { texel: [3, 4], pos: Vec3::new(0.3, 0.04, 0.45), normal: tilted },
+            PatchLuxel { texel: [9, 6], pos: Vec3::new(1.9, 0.04, 0.95), normal: Vec3::Y },
+        ];
+        let pos = vec![Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 1.0), Vec3::new(2.0, 0.0, 1.0)];
+        scene.patch_luxels = vec![PatchMesh { shader: "floor".into(), width: 2, height: 2, pos, normal: vec![Vec3::Y; 4], area_m2: 2.0, rgb: Vec::new(), point_area_m2: Vec::new(), luxels }];
+        let lx = rows(&scene, &Target::empty(4), 3.0);
+        assert_eq!((lx.stats.patch_luxels, lx.stats.patch_luxel_records_unmatched, lx.rows.len()), (2, 0, at_centre.rows.len()));
+        let pb = &lx.rows;
+        let row = |t: [u32; 2]| (0..pb.len()).find(|&i| pb.texel[i] == [0, t[0], t[1]]).unwrap();
+        let k = row([3, 4]);
+        assert_eq!((pb.pos[k], pb.normal[k]), (Vec3::new(0.3, 0.04, 0.45), tilted));
+        assert_eq!(pb.pos[row([9, 6])], Vec3::new(1.9, 0.04, 0.95));
+        // The data and the other rows are as without the record.
+        let k0 = (0..at_centre.rows.len()).find(|&i| at_centre.rows.texel[i] == [0, 3, 4]).unwrap();
+        assert_eq!((pb.lo[k], pb.hi[k], pb.area[k]), (at_centre.rows.lo[k0], at_centre.rows.hi[k0], at_centre.rows.area[k0]));
+        let k = row([5, 4]);
+        let k0 = (0..at_centre.rows.len()).find(|&i| at_centre.rows.texel[i] == [0, 5, 4]).unwrap();
+        assert_eq!(pb.pos[k], at_centre.rows.pos[k0]);
+        // Moved by a metre: the record no longer describes the mesh.
+        scene.mesh.positions.iter_mut().for_each(|p| p.x += 1.0);
+        let lx = rows(&scene, &Target::empty(4), 3.0);
+        assert_eq!((lx.stats.patch_luxels, lx.stats.patch_luxel_records_unmatched), (0, 1));
     }
 
     #[test]
