@@ -336,6 +336,16 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
                     if l.patch_records_unmatched > 0 { format!("; {} patches changed since convert sample their vertices", l.patch_records_unmatched) } else { String::new() }
                 );
             }
+            if l.patch_luxels + l.patch_luxel_records_unmatched > 0 {
+                println!(
+                    "  patches   {} luxels of curved patches where q3map2 sampled them{}",
+                    l.patch_luxels,
+                    if l.patch_luxel_records_unmatched > 0 { format!("; {} patches changed since convert sample their texel centres", l.patch_luxel_records_unmatched) } else { String::new() }
+                );
+            }
+            if l.vertices_nudged + l.vertices_in_solid > 0 {
+                println!("  vertex    {} control points in solid sampled where q3map2's nudge found clear, {} left out (in solid wherever it tried, or unlit by q3map2)", l.vertices_nudged, l.vertices_in_solid);
+            }
             let from = if l.solids_from == "map" { "the map's own solids" } else { "the faces (the file carries no usable `q3_solids`)" };
             println!("  samples   {} nudged out of solid, {} left out (in solid or enclosed); solid as {from}", l.nudged, l.buried);
         }

@@ -419,6 +419,10 @@ pub mod q3map2 {
     /// A sample origin in solid is moved this many texels along the lightmap's axes, trying
     /// in order left, right, up, down, then the four diagonals (`MapSingleLuxel`).
     pub const NUDGE_TEXELS: f32 = 0.5;
+    /// A vertex-lit surface's vertex in solid is sampled instead this far away along the
+    /// map's axes, at steps `(x, y, z)` with each in 0, 1, -1, 2 (x outermost), the first
+    /// clear (`IlluminateVertexes`: its "two's complement" formula never reaches -2).
+    pub const VERTEX_NUDGE_UNITS: f32 = 4.0;
     /// A shadow ray ignores geometry this close to the sample origin.
     pub const INHIBIT_RADIUS_UNITS: f32 = 1.5;
     /// Point and spot lights: the distance in the inverse square is at least this.

@@ -61,6 +61,14 @@ pub struct LuxelStats {
     /// Vertex-lit patches whose record no longer matches the mesh (their vertices are
     /// rows as any vertex-lit surface's).
     pub patch_records_unmatched: usize,
+    /// Control points of vertex-lit patches in solid, sampled where q3map2's nudge found
+    /// clear ([`vertex_sample_point`]), with the normal of the patch's last clear point
+    /// before them (q3map2 never sets the normal of a point in solid).
+    pub vertices_nudged: usize,
+    /// Control points left out: in solid wherever q3map2's nudge tried (it gave them the
+    /// surface's mean), or before any clear point of their patch (no normal: q3map2 left
+    /// them unlit).
+    pub vertices_in_solid: usize,
     /// Luxel rows of curved lightmapped patches at q3map2's own sample points (scene
     /// extras `q3_patch_luxels`, [`patch_luxel_samples`]).
     pub patch_luxels: usize,
@@ -345,9 +353,33 @@ pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut 
         for &v in &verts {
             by_patch[v] = true;
         }
+        // q3map2's normal for a point in solid: the last clear point's of the surface.
+        let mut last_clear_normal: Option<Vec3> = None;
         for k in 0..pm.pos.len() {
             let (Some(&area), Some(&bytes)) = (pm.point_area_m2.get(k), pm.rgb.get(k)) else { continue };
-            if !(area > 0.0) || !pm.pos[k].is_finite() {
+            let own_normal = pm.normal[k].try_normalize();
+            let (pos, normal) = match scene.solids.as_ref().map(|s| (s, vertex_sample_point(s, pm.pos[k]))) {
+                Some((_, Some(p))) if p == pm.pos[k] => {
+                    last_clear_normal = own_normal.or(last_clear_normal);
+                    (p, own_normal)
+                }
+                Some((_, Some(p))) => {
+                    if area > 0.0 {
+                        st.vertices_nudged += usize::from(last_clear_normal.is_some());
+                        st.vertices_in_solid += usize::from(last_clear_normal.is_none());
+                    }
+                    (p, last_clear_normal)
+                }
+                Some((_, None)) => {
+                    st.vertices_in_solid += usize::from(area > 0.0);
+                    continue;
+                }
+                None => (pm.pos[k], own_normal),
+            };
+            // A point in solid before any clear one has no normal in q3map2 (nothing
+            // lights it): left out.
+            let Some(normal) = normal else { continue };
+            if !(area > 0.0) || !pos.is_finite() {
                 continue;
             }
             let Some(&near) = verts.iter().min_by(|&&a, &&b| (mesh.positions[a] - pm.pos[k]).length_squared().total_cmp(&(mesh.positions[b] - pm.pos[k]).length_squared())) else { continue };
@@ -355,8 +387,7 @@ pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut 
             let iv = bytes.map(|b| mat.interval(b));
             let lo = [0, 1, 2].map(|c| albedo[c] * iv[c].0);
             let hi = [0, 1, 2].map(|c| albedo[c] * iv[c].1);
-            let normal = pm.normal[k].try_normalize().unwrap_or(mesh.normals[near]);
-            let base = Row { vertex: u32::MAX, material, texel: [u32::MAX; 3], pos: pm.pos[k], normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area, solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided };
+            let base = Row { vertex: u32::MAX, material, texel: [u32::MAX; 3], pos, normal, albedo, lo, hi, weight: [1.0; 3], lower: [0.0; 3], area, solid_ahead: SolidAhead::NONE, two_sided: mat.double_sided };
             out.push(if mat.censored(&bytes) { base.lower_bound() } else { base });
             st.patch_control_points += 1;
         }
@@ -517,6 +548,35 @@ pub fn place_in_solids(lx: &mut Luxels, solids: &Solids) -> bool {
     true
 }
 
+/// Where q3map2 lit a vertex of a vertex-lit surface (stored frame, m): the vertex itself
+/// unless it is in solid ([`Solids::contains_within`] with q3map2's `VERTEX_EPSILON`: on
+/// a brush's face is not in it); then the first point of `IlluminateVertexes`' nudge
+/// ([`crate::scene::q3map2::VERTEX_NUDGE_UNITS`] steps along the map's axes) that is
+/// clear. `None` when none is: q3map2 gave such a vertex the mean of the surface's lit
+/// ones, which no row here can say, so it is left out. (q3map2 also nudges a clear
+/// vertex that its lights leave black; that depends on the lights and is not done here.)
+pub fn vertex_sample_point(solids: &Solids, p: Vec3) -> Option<Vec3> {
+    let eps = crate::trace::solids::VERTEX_EPSILON_UNITS * solids.units_m();
+    if !solids.contains_within(p, eps) {
+        return Some(p);
+    }
+    // q3map2 means the order 0, 1, -1, 2, -2, but its formula gives 0, 0, 1, -1, 2.
+    const STEPS: [f32; 4] = [0.0, 1.0, -1.0, 2.0];
+    let step = crate::scene::q3map2::VERTEX_NUDGE_UNITS * solids.units_m() as f32;
+    for x in STEPS {
+        for y in STEPS {
+            for z in STEPS {
+                // Quake (x, y, z) is glTF (x, z, -y).
+                let q = p + Vec3::new(x, z, -y) * step;
+                if !solids.contains_within(q, eps) {
+                    return Some(q);
+                }
+            }
+        }
+    }
+    None
+}
+
 /// Marks each luxel row's [`SolidAhead`]: the axial faces of shadow-casting surfaces within
 /// `TRACE_ON_EPSILON` of its sample point whose solid side is Quake's positive one (their
 /// normal points down an axis). Returns how many rows touch one.
@@ -657,6 +717,53 @@ mod tests {
         let lx = rows(&scene, &tg, 3.0);
         assert_eq!((lx.stats.patch_control_points, lx.stats.vertex_rows, lx.stats.patch_records_unmatched), (0, 4, 1));
         assert!(lx.rows.vertex.iter().all(|&v| v != u32::MAX));
+    }
+
+    /// A vertex-lit patch's control points in solid (the map's solids: below the plane
+    /// y = 0, 1 m per unit) are sampled where q3map2's nudge first finds clear (4 units up
+    /// first), with the normal of the patch's last clear point before them; those before
+    /// any clear point have no normal in q3map2 and are left out.
+    #[test]
+    fn control_points_in_solid_are_nudged_with_the_last_clear_normal() {
+        let floor = serde_json::json!({ "planes": [0, 1, 0, 0], "nodes": [0, -1, -2], "leafs": [0, 0, 0, 1, 0, 0], "leaf_brushes": [], "brushes": [], "brush_planes": [] });
+        let record = |sunk_row: usize| {
+            let (mut pos, mut normal, mut area) = (Vec::new(), Vec::new(), Vec::new());
+            for j in 0..3 {
+                for i in 0..3 {
+                    pos.push(Vec3::new(i as f32, if j == sunk_row { -1.0 } else { 0.5 }, 0.5 * j as f32));
+                    normal.push(if j * 3 + i == 5 { Vec3::Z } else { Vec3::Y });
+                    area.push(if i != 1 && j != 1 { 0.5 } else { 0.0 });
+                }
+            }
+            crate::model::patch_mesh::PatchMesh { shader: "pad".into(), width: 3, height: 3, pos, normal, area_m2: 2.0, rgb: vec![[50, 30, 20]; 9], point_area_m2: area, luxels: Vec::new() }
+        };
+        let mut scene = floor_scene();
+        scene.materials[0].name = "pad#vertex".into();
+        scene.materials[0].lighting = Lighting::Vertex;
+        scene.materials[0].lightmap = None;
+        scene.mesh.positions.iter_mut().for_each(|p| p.y = 0.5);
+        scene.solids = Some(crate::trace::solids::Solids::from_extras(&floor, glam::DVec3::ZERO, 1.0).unwrap());
+        let mut tg = Target::empty(4);
+        for v in 0..4 {
+            (tg.area[v], tg.albedo[v], tg.value[v], tg.hi[v], tg.weight[v]) = (0.5, [0.5; 3], [0.1; 3], [0.11; 3], [1.0; 3]);
+        }
+        // The last row sunk: its corners move 4 up and take point 5's normal (+z).
+        scene.patch_vertices = vec![record(2)];
+        let lx = rows(&scene, &tg, 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.stats.vertices_nudged, lx.stats.vertices_in_solid), (4, 2, 0));
+        let pb = &lx.rows;
+        for (p, n) in [(Vec3::new(0.0, 0.5, 0.0), Vec3::Y), (Vec3::new(2.0, 0.5, 0.0), Vec3::Y), (Vec3::new(0.0, 3.0, 1.0), Vec3::Z), (Vec3::new(2.0, 3.0, 1.0), Vec3::Z)] {
+            let k = (0..pb.len()).find(|&i| pb.pos[i] == p).unwrap_or_else(|| panic!("no row at {p}: {:?}", pb.pos));
+            assert_eq!(pb.normal[k], n);
+        }
+        // The first row sunk: nothing clear before its corners, which are left out.
+        scene.patch_vertices = vec![record(0)];
+        let lx = rows(&scene, &tg, 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.stats.vertices_nudged, lx.stats.vertices_in_solid), (2, 0, 2));
+        // Without the map's solids, every point is where the record says.
+        scene.solids = None;
+        let lx = rows(&scene, &tg, 3.0);
+        assert_eq!((lx.stats.patch_control_points, lx.stats.vertices_nudged), (4, 0));
     }
 
     /// The floor quad as a curved patch's luxels: two of its texels have q3map2's own

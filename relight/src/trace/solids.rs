@@ -17,6 +17,10 @@ pub const PLANE_EPSILON_UNITS: f64 = 0.1;
 /// q3map2's `LUXEL_EPSILON`: a point this far outside a brush's planes (Quake units)
 /// still counts as inside it.
 pub const BRUSH_EPSILON_UNITS: f64 = 0.125;
+/// q3map2's `VERTEX_EPSILON`, for the vertices of vertex-lit surfaces: a vertex counts as
+/// inside a brush only this far inside all its planes (Quake units; a vertex on a brush's
+/// face is not in it).
+pub const VERTEX_EPSILON_UNITS: f64 = -0.125;
 
 /// The solid structure of a map, in the scene's stored frame (metres; see
 /// [`crate::scene::Scene::origin`]).
@@ -35,6 +39,8 @@ pub struct Solids {
     /// Epsilons in metres.
     plane_eps_m: f64,
     brush_eps_m: f64,
+    /// Metres per Quake unit.
+    units_m: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -126,6 +132,7 @@ impl Solids {
             brush_planes,
             plane_eps_m: PLANE_EPSILON_UNITS * units_m,
             brush_eps_m: BRUSH_EPSILON_UNITS * units_m,
+            units_m,
         })
     }
 
@@ -165,6 +172,17 @@ impl Solids {
     /// (`ClusterForPointExt`): in a leaf of structural solid, or inside an opaque brush of
     /// its leaf within the brush epsilon.
     pub fn contains(&self, p: Vec3) -> bool {
+        self.contains_within(p, self.brush_eps_m)
+    }
+
+    /// Metres per Quake unit.
+    pub fn units_m(&self) -> f64 {
+        self.units_m
+    }
+
+    /// [`Solids::contains`] with the brush epsilon `brush_eps_m` (metres, positive
+    /// outwards): q3map2 asks with [`VERTEX_EPSILON_UNITS`] for a vertex.
+    pub fn contains_within(&self, p: Vec3, brush_eps_m: f64) -> bool {
         let p = p.as_dvec3();
         if !p.is_finite() {
             return false;
@@ -175,7 +193,7 @@ impl Solids {
         }
         self.leaf_brushes[leaf.first as usize..(leaf.first + leaf.count) as usize].iter().any(|&b| {
             let (first, count) = self.brushes[b as usize];
-            self.brush_planes[first as usize..(first + count) as usize].iter().all(|&pl| self.side(pl, p) <= self.brush_eps_m)
+            self.brush_planes[first as usize..(first + count) as usize].iter().all(|&pl| self.side(pl, p) <= brush_eps_m)
         })
     }
 }
@@ -210,6 +228,27 @@ mod tests {
         // On the floor's plane: the front (open) side is taken.
         assert!(!s.contains(Vec3::new(5.0, -0.05, 0.0)));
         assert!(s.contains(Vec3::new(5.0, -0.2, 0.0)));
+    }
+
+    /// q3map2's vertex samples: a vertex on a brush's face is not in it; one inside is
+    /// nudged 4 units along the map's axes (Quake z, glTF y, first), to the first clear
+    /// point; one deep in solid is left out.
+    #[test]
+    fn a_vertex_in_solid_is_nudged_along_the_maps_axes() {
+        use crate::rows::luxel::vertex_sample_point;
+        let s = Solids::from_extras(&world(), DVec3::ZERO, 1.0).unwrap();
+        let clear = Vec3::new(5.0, 1.0, 0.0);
+        assert_eq!(vertex_sample_point(&s, clear), Some(clear));
+        // On the caulk box's face (and within the luxels' epsilon of it): clear.
+        assert!(s.contains(Vec3::new(1.0, 0.5, 0.5)));
+        assert_eq!(vertex_sample_point(&s, Vec3::new(1.0, 0.5, 0.5)), Some(Vec3::new(1.0, 0.5, 0.5)));
+        // Inside the box: Quake z + 4 units first, glTF y + 4 m here.
+        assert_eq!(vertex_sample_point(&s, Vec3::new(0.5, 0.5, 0.5)), Some(Vec3::new(0.5, 4.5, 0.5)));
+        // Under the floor: up by 4 is still solid at -6, up by 8 is clear.
+        assert_eq!(vertex_sample_point(&s, Vec3::new(5.0, -6.0, 0.0)), Some(Vec3::new(5.0, -6.0, 0.0) + Vec3::Y * 8.0));
+        assert_eq!(vertex_sample_point(&s, Vec3::new(5.0, -1.0, 0.0)), Some(Vec3::new(5.0, 3.0, 0.0)));
+        // Deeper than every nudge reaches: left out.
+        assert_eq!(vertex_sample_point(&s, Vec3::new(5.0, -20.0, 0.0)), None);
     }
 
     #[test]
