@@ -100,6 +100,11 @@ pub fn layout(ctrl: &[DrawVert], cw: usize, ch: usize, page: [usize; 2]) -> Opti
         return None;
     }
     let size = [span.x as u32 + 1, span.y as u32 + 1];
+    // The raw lightmap lies on its page (this also bounds the mapping's work by the
+    // page's texels).
+    if offset.x < 0.0 || offset.y < 0.0 || offset.x + f64::from(size[0]) > page[0] as f64 || offset.y + f64::from(size[1]) > page[1] as f64 {
+        return None;
+    }
     let (sb, tb) = basis(size, cw, ch);
     for y in 0..ch {
         for x in 0..cw {
@@ -371,6 +376,12 @@ mod tests {
         // A planar projection: lightmap coordinates from x and z.
         let flat: Vec<DrawVert> = c.iter().map(|v| DrawVert { lightmap: [v.xyz[0] / 2048.0 + 0.3, v.xyz[2] / 2048.0], ..*v }).collect();
         assert_eq!(layout(&flat, 5, 3, [128, 128]), None);
+        // A raw lightmap that would run off its page: none (a hostile file's coordinates
+        // cannot make the mapping walk millions of luxels).
+        assert_eq!(layout(&column(17, 13, [120.0, 7.0]), 5, 3, [128, 128]), None);
+        let huge: Vec<DrawVert> = c.iter().map(|v| DrawVert { lightmap: [v.lightmap[0] * 5000.0, v.lightmap[1]], ..*v }).collect();
+        assert_eq!(layout(&huge, 5, 3, [128, 128]), None);
+        assert_eq!(patch_samples(&huge, 5, 3, [128, 128], 2), None);
     }
 
     #[test]
