@@ -100,8 +100,13 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     assert_recovered(&found, &sample_truth(), [0.0; 3], 0.05, 0.02);
     let err = r["rel_error_final"].as_f64().unwrap();
     // Measured about 0.044 (0.035 with the true lights: a handful of luxels whose shadow rays
-    // graze an occluder's edge exactly, where q3map2's test and ours disagree).
-    assert!(err < 0.05, "relative error {err}");
+    // graze an occluder's edge exactly, where q3map2's test and ours disagree); 0.058 since
+    // relight samples a curved patch's luxels where q3map2 does (2026-11-26): the sample's
+    // generator baked its arch at the luxels' centres on the surface, so those rows now sit
+    // up to half a luxel from where their bytes were computed. (Baking the arch at q3map2's
+    // points needs relight to cast the arch's shadows from q3map2's coarse mesh too, as
+    // `-patchshadows` does: with the drawn arch as occluder it was 0.056.)
+    assert!(err < 0.065, "relative error {err}");
     // The fit starts where the placement ended (on the sample its subsample is every
     // row): the undecided bounce joins the phases only where it lowers the error (it took
     // the placed lights from 0.020 to 0.136 when it started on).
