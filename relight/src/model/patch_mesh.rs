@@ -221,6 +221,11 @@ pub fn match_triangles(meshes: &[PatchMesh], positions: &[Vec3], triangles: &[[u
             area[k] += 0.5 * (b - a).cross(c - a).length();
         }
     }
+    holding(members, &area, meshes)
+}
+
+/// Each record's triangles while their area is the record's (0.5%), else `None`.
+fn holding(members: Vec<Vec<u32>>, area: &[f64], meshes: &[PatchMesh]) -> Vec<Option<Vec<u32>>> {
     members
         .into_iter()
         .zip(area)
@@ -270,12 +275,7 @@ pub fn match_triangles_by_texel(meshes: &[PatchMesh], positions: &[Vec3], triang
             area[k] += 0.5 * (b - a).cross(c - a).length();
         }
     }
-    members
-        .into_iter()
-        .zip(area)
-        .zip(meshes)
-        .map(|((tris, a), m)| ((a - m.area_m2).abs() <= AREA_TOLERANCE * m.area_m2 + 1e-12 && !tris.is_empty()).then_some(tris))
-        .collect()
+    holding(members, &area, meshes)
 }
 
 #[cfg(test)]
