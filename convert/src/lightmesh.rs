@@ -291,17 +291,19 @@ pub fn light_mesh(ctrl: &[DrawVert], w: usize, h: usize, iterations: u32) -> Opt
     Some(LightMesh { width, height, verts: rows.into_iter().flatten().collect() })
 }
 
-/// The `-subdivisions N` of a recorded command line's light stage (its `;`-separated
-/// part with `-light`), else q3map2's default.
-pub fn subdivisions_of(cmdline: Option<&str>) -> u32 {
-    let Some(light) = cmdline.and_then(|c| c.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))) else {
-        return DEFAULT_SUBDIVISIONS;
-    };
+/// The word after `switch` in a recorded command line's light stage (its `;`-separated
+/// part with `-light`): `-subdivisions N`, `-super N`, `-gamma G`.
+pub fn light_stage_value<'a>(cmdline: &'a str, switch: &str) -> Option<&'a str> {
+    let light = cmdline.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))?;
     let words: Vec<&str> = light.split_whitespace().collect();
-    words
-        .windows(2)
-        .find(|w| w[0].eq_ignore_ascii_case("-subdivisions"))
-        .and_then(|w| w[1].parse::<i64>().ok())
+    words.windows(2).find(|w| w[0].eq_ignore_ascii_case(switch)).map(|w| w[1])
+}
+
+/// The `-subdivisions N` of a recorded command line's light stage, else q3map2's default.
+pub fn subdivisions_of(cmdline: Option<&str>) -> u32 {
+    cmdline
+        .and_then(|c| light_stage_value(c, "-subdivisions"))
+        .and_then(|v| v.parse::<i64>().ok())
         .map_or(DEFAULT_SUBDIVISIONS, |n| n.clamp(1, 1 << 16) as u32)
 }
 

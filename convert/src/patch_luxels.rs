@@ -133,6 +133,21 @@ fn plane(p0: DVec3, p1: DVec3, p2: DVec3) -> Option<(DVec3, f64)> {
     })
 }
 
+/// The first longest edge `(i, i + 1)` of a polygon in the lightmap (luxels), when it is
+/// longer than q3map2's `subdivideThreshold`; `None` stops the recursion.
+fn longest_edge(dv: &[Vert]) -> Option<usize> {
+    let mut max = None;
+    let mut max_dist = 0.0;
+    for i in 0..dv.len() {
+        let d = (dv[i].lm - dv[(i + 1) % dv.len()].lm).length_squared();
+        if d > max_dist {
+            max_dist = d;
+            max = Some(i);
+        }
+    }
+    max.filter(|_| max_dist > SUBDIVIDE_THRESHOLD)
+}
+
 /// The luxels of one raw lightmap as the mapping fills them.
 struct Luxels {
     size: [u32; 2],
@@ -160,16 +175,7 @@ impl Luxels {
 
     /// `MapTriangle_r`.
     fn triangle_r(&mut self, dv: [Vert; 3], n: DVec3, depth: u32) {
-        let mut max = None;
-        let mut max_dist = 0.0;
-        for i in 0..3 {
-            let d = (dv[i].lm - dv[(i + 1) % 3].lm).length_squared();
-            if d > max_dist {
-                max_dist = d;
-                max = Some(i);
-            }
-        }
-        let Some(max) = max.filter(|_| max_dist > SUBDIVIDE_THRESHOLD && depth < MAX_DEPTH) else { return };
+        let Some(max) = longest_edge(&dv).filter(|_| depth < MAX_DEPTH) else { return };
         let mid = lightmesh::lerp(&dv[max], &dv[(max + 1) % 3]);
         self.land(&mid, n);
         let mut a = dv;
@@ -201,16 +207,7 @@ impl Luxels {
 
     /// `MapQuad_r`.
     fn quad_r(&mut self, dv: [Vert; 4], n: DVec3, depth: u32) {
-        let mut max = None;
-        let mut max_dist = 0.0;
-        for i in 0..4 {
-            let d = (dv[i].lm - dv[(i + 1) % 4].lm).length_squared();
-            if d > max_dist {
-                max_dist = d;
-                max = Some(i);
-            }
-        }
-        let Some(max) = max.filter(|_| max_dist > SUBDIVIDE_THRESHOLD && depth < MAX_DEPTH) else { return };
+        let Some(max) = longest_edge(&dv).filter(|_| depth < MAX_DEPTH) else { return };
         let max = max & 1;
         let m0 = lightmesh::lerp(&dv[max], &dv[(max + 1) % 4]);
         let m1 = lightmesh::lerp(&dv[max + 2], &dv[(max + 3) % 4]);
@@ -270,9 +267,10 @@ pub fn map_luxels(mesh: &LightMesh, size: [u32; 2]) -> Vec<LuxelSample> {
     out
 }
 
-/// The samples of one drawn patch surface, in its raw lightmap, with the layout; `None`
-/// when it is not a curved lightmapped patch as q3map2 lays them out.
-pub fn patch_samples(ctrl: &[DrawVert], cw: usize, ch: usize, page: [usize; 2], iterations: u32) -> Option<(Layout, Vec<LuxelSample>)> {
+/// The samples of one drawn patch surface, in its raw lightmap, with the layout and the
+/// light mesh they were mapped on (its `lm` in raw luxels); `None` when it is not a curved
+/// lightmapped patch as q3map2 lays them out.
+pub fn patch_samples(ctrl: &[DrawVert], cw: usize, ch: usize, page: [usize; 2], iterations: u32) -> Option<(Layout, LightMesh, Vec<LuxelSample>)> {
     let layout = layout(ctrl, cw, ch, page)?;
     if !ctrl.iter().all(|v| v.xyz.iter().chain(&v.normal).all(|x| x.is_finite())) {
         return None;
@@ -283,16 +281,13 @@ pub fn patch_samples(ctrl: &[DrawVert], cw: usize, ch: usize, page: [usize; 2], 
         .map(|(x, y)| DrawVert { lightmap: [sb * x as f32 + 0.5, tb * y as f32 + 0.5], ..ctrl[y * cw + x] })
         .collect();
     let mesh = lightmesh::light_mesh(&raw, cw, ch, iterations)?;
-    Some((layout, map_luxels(&mesh, layout.size)))
+    let samples = map_luxels(&mesh, layout.size);
+    Some((layout, mesh, samples))
 }
 
 /// The `-super N` of a recorded command line's light stage (1 without one).
 pub fn super_sample_of(cmdline: Option<&str>) -> u32 {
-    let Some(light) = cmdline.and_then(|c| c.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))) else {
-        return 1;
-    };
-    let words: Vec<&str> = light.split_whitespace().collect();
-    words.windows(2).find(|w| w[0].eq_ignore_ascii_case("-super")).and_then(|w| w[1].parse::<u32>().ok()).map_or(1, |n| n.max(1))
+    cmdline.and_then(|c| lightmesh::light_stage_value(c, "-super")).and_then(|v| v.parse::<u32>().ok()).map_or(1, |n| n.max(1))
 }
 
 /// A drawn lightmapped patch: its surface, shader name, drawn area (m^2), and where its
@@ -318,9 +313,7 @@ pub fn q3map2_patch_luxels(bsp: &Bsp, patches: &[LitPatch], subdivisions: u32, s
         let (cw, ch) = (s.patch_w as usize, s.patch_h as usize);
         let ctrl = bsp.surface_verts(s);
         let iterations = lightmesh::iterations_for_curve(longest.get(&p.surface).copied().unwrap_or(0.0), subdivisions);
-        let Some((layout, samples)) = patch_samples(ctrl, cw, ch, p.page_size, iterations) else { continue };
-        // The light mesh again, in Quake coordinates, for relight's match.
-        let Some(mesh) = lightmesh::light_mesh(ctrl, cw, ch, iterations) else { continue };
+        let Some((layout, mesh, samples)) = patch_samples(ctrl, cw, ch, p.page_size, iterations) else { continue };
         let mut texel = Vec::with_capacity(2 * samples.len());
         let mut xyz = Vec::with_capacity(3 * samples.len());
         let mut normal = Vec::with_capacity(3 * samples.len());
@@ -387,7 +380,7 @@ mod tests {
     #[test]
     fn every_luxel_gets_one_sample_on_the_coarse_mesh() {
         let c = column(17, 13, [0.0, 0.0]);
-        let (lay, s) = patch_samples(&c, 5, 3, [128, 128], 2).unwrap();
+        let (lay, _, s) = patch_samples(&c, 5, 3, [128, 128], 2).unwrap();
         assert_eq!(lay.size, [17, 13]);
         // Every luxel of the raw lightmap has a sample (edges of one luxel at most).
         assert_eq!(s.len(), 17 * 13);
@@ -411,7 +404,7 @@ mod tests {
         // x = 0.5, 2, 3.5, 5, 6.5: luxel 2 is first reached at its left edge (x = 2.0),
         // not at its centre.
         let c = column(7, 5, [0.0, 0.0]);
-        let (_, s) = patch_samples(&c, 5, 3, [128, 128], 0).unwrap();
+        let (_, _, s) = patch_samples(&c, 5, 3, [128, 128], 0).unwrap();
         let q = s.iter().find(|q| q.x == 2 && q.y == 0).unwrap();
         // Control point 1 of the bottom row is (-80, 80, 0), off the curve: the mesh
         // moved it onto the curve, to (-60, 60, 0) (the quarter circle's middle), and

@@ -711,14 +711,7 @@ fn entity_rotation(e: &Entity) -> Option<[f32; 4]> {
 /// The `-gamma G` of the light stage of a recorded q3map2 command line (stages are
 /// separated by `;`), when it is a sane positive number.
 pub fn light_gamma(cmdline: &str) -> Option<f64> {
-    let light = cmdline.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))?;
-    let mut it = light.split_whitespace();
-    while let Some(t) = it.next() {
-        if t.eq_ignore_ascii_case("-gamma") {
-            return it.next()?.parse::<f64>().ok().filter(|g| g.is_finite() && (0.1..=10.0).contains(g));
-        }
-    }
-    None
+    crate::lightmesh::light_stage_value(cmdline, "-gamma")?.parse::<f64>().ok().filter(|g| g.is_finite() && (0.1..=10.0).contains(g))
 }
 
 /// The entities of a `.map` source ([`crate::mapfile`]), read with a size bound.

@@ -118,7 +118,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
     // Which texels are taken, per lightmap texture (allocated for lightmaps only).
     let mut claimed: Vec<Option<Vec<bool>>> = vec![None; scene.textures.len()];
     let mut texel_axes = Vec::new();
-    let patch_samples = patch_luxel_samples(scene, &mut st);
+    let (record_of_tri, patch_samples) = patch_luxel_samples(scene, &mut st);
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let mat = &scene.materials[mesh.tri_material[t] as usize];
         if mat.lighting != Lighting::Lightmap {
@@ -187,7 +187,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 }
                 taken[y * w + x] = true;
                 let bf = b.map(|v| v as f32);
-                let (pos, normal) = match patch_samples.get(&(t as u32)).and_then(|m| m.get(&[x as u32, y as u32])) {
+                let (pos, normal) = match record_of_tri.get(t).copied().flatten().and_then(|k| patch_samples[k].get(&[x as u32, y as u32])) {
                     // Where q3map2 sampled a curved patch's luxel (its offset included).
                     Some(&(pos, normal)) => {
                         st.patch_luxels += 1;
@@ -270,15 +270,16 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
 type LuxelSamples = std::collections::HashMap<[u32; 2], (Vec3, Vec3)>;
 
 /// Where q3map2 sampled the luxels of the curved lightmapped patches that the scene's
-/// `q3_patch_luxels` record still describes ([`crate::model::patch_mesh::match_triangles`]),
-/// per triangle of each such patch. q3map2 mapped a curved patch's luxels on its own
+/// `q3_patch_luxels` record still describes
+/// ([`crate::model::patch_mesh::match_triangles_by_texel`]): per triangle, the record that
+/// stands for it (an index into the second list). q3map2 mapped a curved patch's luxels on its own
 /// coarse mesh of it, each at the first point of that mesh's subdivision that landed in
 /// the luxel (convert's `patch_luxels`), up to half a luxel from the texel's centre on
 /// the drawn surface.
-fn patch_luxel_samples(scene: &Scene, st: &mut LuxelStats) -> std::collections::HashMap<u32, std::rc::Rc<LuxelSamples>> {
-    let mut out = std::collections::HashMap::new();
+fn patch_luxel_samples(scene: &Scene, st: &mut LuxelStats) -> (Vec<Option<usize>>, Vec<LuxelSamples>) {
+    let (mut record_of_tri, mut samples) = (Vec::new(), Vec::new());
     if scene.patch_luxels.is_empty() {
-        return out;
+        return (record_of_tri, samples);
     }
     let mesh = &scene.mesh;
     let shader_of_tri: Vec<Option<&str>> = mesh
@@ -297,18 +298,18 @@ fn patch_luxel_samples(scene: &Scene, st: &mut LuxelStats) -> std::collections::
         })
         .collect();
     let matched = crate::model::patch_mesh::match_triangles_by_texel(&scene.patch_luxels, &mesh.positions, &mesh.triangles, &shader_of_tri, &texel_of_tri, scene.units_m);
+    record_of_tri = vec![None; mesh.triangles.len()];
     for (pm, tris) in scene.patch_luxels.iter().zip(matched) {
         let Some(tris) = tris else {
             st.patch_luxel_records_unmatched += 1;
             continue;
         };
-        let samples: LuxelSamples = pm.luxels.iter().filter(|l| l.pos.is_finite() && l.normal.is_finite()).map(|l| (l.texel, (l.pos, l.normal))).collect();
-        let samples = std::rc::Rc::new(samples);
         for t in tris {
-            out.insert(t, samples.clone());
+            record_of_tri[t as usize] = Some(samples.len());
         }
+        samples.push(pm.luxels.iter().filter(|l| l.pos.is_finite() && l.normal.is_finite()).map(|l| (l.texel, (l.pos, l.normal))).collect());
     }
-    out
+    (record_of_tri, samples)
 }
 
 /// The rows of the vertex-lit patches that the scene's `q3_patch_vertices` record still
@@ -358,19 +359,19 @@ pub fn patch_control_point_rows(scene: &Scene, vertex_target: &Target, st: &mut 
         for k in 0..pm.pos.len() {
             let (Some(&area), Some(&bytes)) = (pm.point_area_m2.get(k), pm.rgb.get(k)) else { continue };
             let own_normal = pm.normal[k].try_normalize();
-            let (pos, normal) = match scene.solids.as_ref().map(|s| (s, vertex_sample_point(s, pm.pos[k]))) {
-                Some((_, Some(p))) if p == pm.pos[k] => {
+            let (pos, normal) = match scene.solids.as_ref().map(|s| vertex_sample_point(s, pm.pos[k])) {
+                Some(Some(p)) if p == pm.pos[k] => {
                     last_clear_normal = own_normal.or(last_clear_normal);
                     (p, own_normal)
                 }
-                Some((_, Some(p))) => {
+                Some(Some(p)) => {
                     if area > 0.0 {
                         st.vertices_nudged += usize::from(last_clear_normal.is_some());
                         st.vertices_in_solid += usize::from(last_clear_normal.is_none());
                     }
                     (p, last_clear_normal)
                 }
-                Some((_, None)) => {
+                Some(None) => {
                     st.vertices_in_solid += usize::from(area > 0.0);
                     continue;
                 }
