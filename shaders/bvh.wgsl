@@ -29,6 +29,10 @@ fn slab(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
     return !(near > far);
 }
 
+// Barycentric slack of the hit test: a ray through the edge two triangles share hits
+// one of them (the CPU's `trace::bvh::EDGE_SLACK`).
+const EDGE_SLACK: f32 = 1e-5;
+
 // Moeller-Trumbore, two-sided; returns the ray parameter or -1.
 fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
     let e1 = tri.e1.xyz;
@@ -41,12 +45,12 @@ fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
     let inv = 1.0 / det;
     let s = o - tri.v0.xyz;
     let u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) {
+    if (u < -EDGE_SLACK || u > 1.0 + EDGE_SLACK) {
         return -1.0;
     }
     let q = cross(s, e1);
     let v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) {
+    if (v < -EDGE_SLACK || u + v > 1.0 + EDGE_SLACK) {
         return -1.0;
     }
     return dot(e2, q) * inv;

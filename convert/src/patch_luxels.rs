@@ -36,15 +36,23 @@
 //!    is not read here) and its normal; every later point adds its normal, and the sum
 //!    is normalised at the end.
 //!
-//! Not reproduced: q3map2's nudges of a point in solid (relight finds those itself) and
-//! `-super` (the record is only written at `superSample` 1: a recorded command line with
-//! `-super N`, N > 1, writes none).
+//! 5. **A point in solid** (relight tests it with the map's solids): `MapSingleLuxel`
+//!    tries it 0.5 unit away along two directions across the plane's normal, left,
+//!    right, up, down, then the diagonals. On a curved patch these are the unit vectors
+//!    of `MakeNormalVectors(plane normal)`, not the lightmap's axes as on a face (half a
+//!    luxel there), so the record carries them per luxel.
+//!
+//! Not reproduced: a luxel whose first point stays in solid after every nudge takes a
+//! later point of the mapping in q3map2 (relight leaves it out), and `-super` (the record
+//! is only written at `superSample` 1: a recorded command line with `-super N`, N > 1,
+//! writes none).
 //!
 //! The record convert writes into the scene's extras, `q3_patch_luxels`, has one entry
 //! per drawn curved lightmapped patch: `shader`, `size`, `xyz`, `normal`, `area_m2` as
 //! the light meshes' records (so relight matches it to the mesh the same way), and the
 //! samples: `luxel_texel` (two whole numbers each: the luxel's texel in its atlas image),
-//! `luxel_xyz` and `luxel_normal` (three each, glTF axes, metres).
+//! `luxel_xyz` and `luxel_normal` (three each, glTF axes, metres), and `luxel_nudge`
+//! (six each: the two unit directions of rule 5, glTF axes).
 
 use crate::bsp::{Bsp, DrawVert, SurfaceType};
 use crate::lightmesh::{self, LightMesh, Vert};
@@ -72,6 +80,16 @@ pub struct LuxelSample {
     pub y: u32,
     pub origin: DVec3,
     pub normal: DVec3,
+    /// The directions of q3map2's nudges of this sample when it is in solid (rule 5).
+    pub nudge: [DVec3; 2],
+}
+
+/// q3map2's `MakeNormalVectors`: two unit vectors across `forward` (a unit vector), from
+/// a rotated copy of it.
+fn make_normal_vectors(forward: DVec3) -> [DVec3; 2] {
+    let r = DVec3::new(forward.z, -forward.x, forward.y);
+    let right = (r - forward * r.dot(forward)).normalize_or_zero();
+    [right, right.cross(forward)]
 }
 
 /// The raw lightmap of a curved patch as q3map2 laid it out (rule 1).
@@ -151,8 +169,8 @@ fn longest_edge(dv: &[Vert]) -> Option<usize> {
 /// The luxels of one raw lightmap as the mapping fills them.
 struct Luxels {
     size: [u32; 2],
-    /// Per luxel: origin, normal sum, points landed.
-    cells: HashMap<(u32, u32), (DVec3, DVec3, u32)>,
+    /// Per luxel: origin, normal sum, points landed, the first point's plane normal.
+    cells: HashMap<(u32, u32), (DVec3, DVec3, u32, DVec3)>,
 }
 
 impl Luxels {
@@ -169,7 +187,7 @@ impl Luxels {
             .or_insert_with(|| {
                 let mut origin = v.xyz;
                 origin.x += if n.x < 0.0 { -SAMPLE_OFFSET } else { SAMPLE_OFFSET };
-                (origin, v.normal, 1)
+                (origin, v.normal, 1, n)
             });
     }
 
@@ -258,9 +276,9 @@ pub fn map_luxels(mesh: &LightMesh, size: [u32; 2]) -> Vec<LuxelSample> {
     let mut out: Vec<LuxelSample> = lx
         .cells
         .into_iter()
-        .filter_map(|((x, y), (origin, sum, _))| {
+        .filter_map(|((x, y), (origin, sum, _, plane))| {
             let l = sum.length();
-            (l > 0.0 && origin.is_finite()).then(|| LuxelSample { x, y, origin, normal: sum / l })
+            (l > 0.0 && origin.is_finite()).then(|| LuxelSample { x, y, origin, normal: sum / l, nudge: make_normal_vectors(plane) })
         })
         .collect();
     out.sort_by_key(|s| (s.y, s.x));
@@ -317,6 +335,7 @@ pub fn q3map2_patch_luxels(bsp: &Bsp, patches: &[LitPatch], subdivisions: u32, s
         let mut texel = Vec::with_capacity(2 * samples.len());
         let mut xyz = Vec::with_capacity(3 * samples.len());
         let mut normal = Vec::with_capacity(3 * samples.len());
+        let mut nudge = Vec::with_capacity(6 * samples.len());
         for q in &samples {
             let tx = layout.offset[0] + i64::from(q.x);
             let ty = layout.offset[1] + i64::from(q.y);
@@ -327,6 +346,9 @@ pub fn q3map2_patch_luxels(bsp: &Bsp, patches: &[LitPatch], subdivisions: u32, s
             texel.extend([p.page_origin[0] as i64 + tx, p.page_origin[1] as i64 + ty]);
             xyz.extend(units::direction(q.origin.to_array()).map(|x| x * scale));
             normal.extend(units::direction(q.normal.to_array()));
+            for d in q.nudge {
+                nudge.extend(units::direction(d.to_array()));
+            }
         }
         if texel.is_empty() {
             continue;
@@ -335,7 +357,7 @@ pub fn q3map2_patch_luxels(bsp: &Bsp, patches: &[LitPatch], subdivisions: u32, s
         let mnormal: Vec<f64> = mesh.verts.iter().flat_map(|v| units::direction(v.normal.to_array())).collect();
         list.push(json!({
             "shader": p.shader, "size": [mesh.width, mesh.height], "xyz": mxyz, "normal": mnormal, "area_m2": p.area_m2,
-            "luxel_texel": texel, "luxel_xyz": xyz, "luxel_normal": normal,
+            "luxel_texel": texel, "luxel_xyz": xyz, "luxel_normal": normal, "luxel_nudge": nudge,
         }));
     }
     (!list.is_empty()).then_some(Value::Array(list))
@@ -410,6 +432,25 @@ mod tests {
         // moved it onto the curve, to (-60, 60, 0) (the quarter circle's middle), and
         // the quad's plane faces +x: one unit that way.
         assert!((q.origin - DVec3::new(-59.0, 60.0, 0.0)).length() < 1e-9, "{q:?}");
+    }
+
+    /// Rule 5: the nudge directions are q3map2's `MakeNormalVectors` of the plane the
+    /// luxel's first point was mapped with: unit, across the normal and each other.
+    #[test]
+    fn each_luxel_carries_q3map2s_nudge_directions() {
+        // MakeNormalVectors((0, 0, 1)): right from the rotated (1, -0, 0), up = right x f.
+        let [r, u] = make_normal_vectors(DVec3::Z);
+        assert!((r - DVec3::X).length() < 1e-12 && (u - DVec3::new(0.0, -1.0, 0.0)).length() < 1e-12, "{r} {u}");
+        let c = column(17, 13, [0.0, 0.0]);
+        let (_, _, s) = patch_samples(&c, 5, 3, [128, 128], 2).unwrap();
+        for q in &s {
+            let [a, b] = q.nudge;
+            assert!((a.length() - 1.0).abs() < 1e-9 && (b.length() - 1.0).abs() < 1e-9, "{q:?}");
+            assert!(a.dot(b).abs() < 1e-9, "{q:?}");
+            // Across a plane of the column: the normal is horizontal, so one of them is
+            // nearly vertical and the other across the normal in the horizontal.
+            assert!(a.dot(q.normal).abs() < 0.2 && b.dot(q.normal).abs() < 0.2, "{q:?}");
+        }
     }
 
     #[test]

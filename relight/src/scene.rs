@@ -419,6 +419,10 @@ pub mod q3map2 {
     /// A sample origin in solid is moved this many texels along the lightmap's axes, trying
     /// in order left, right, up, down, then the four diagonals (`MapSingleLuxel`).
     pub const NUDGE_TEXELS: f32 = 0.5;
+    /// On a curved patch the same nudges go this far (Quake units) along two unit vectors
+    /// across the mapped triangle's plane (`MakeNormalVectors`), not along the lightmap's
+    /// axes: the record of each luxel carries them (convert's `patch_luxels`).
+    pub const CURVED_NUDGE_UNITS: f32 = 0.5;
     /// A vertex-lit surface's vertex in solid is sampled instead this far away along the
     /// map's axes, at steps `(x, y, z)` with each in 0, 1, -1, 2 (x outermost), the first
     /// clear (`IlluminateVertexes`: its "two's complement" formula never reaches -2).

@@ -50,6 +50,9 @@ pub struct PatchLuxel {
     pub texel: [u32; 2],
     pub pos: Vec3,
     pub normal: Vec3,
+    /// The unit directions of q3map2's nudges of the sample when it is in solid
+    /// (`luxel_nudge`; `None` in a record written before convert wrote them).
+    pub nudge: Option<[Vec3; 2]>,
 }
 
 /// Relative slack of the area test.
@@ -109,6 +112,7 @@ pub fn from_extras(v: &Value, origin: DVec3) -> Result<Vec<PatchMesh>, String> {
                 let n = texel.len() / 2;
                 let xyz = numbers(r, "luxel_xyz", 3 * n).map_err(at)?;
                 let nrm = numbers(r, "luxel_normal", 3 * n).map_err(at)?;
+                let nudge = r.get("luxel_nudge").map(|_| numbers(r, "luxel_nudge", 6 * n)).transpose().map_err(at)?;
                 if texel.iter().any(|&t| t.fract() != 0.0 || !(0.0..=f64::from(u16::MAX)).contains(&t)) {
                     return Err(at("`luxel_texel` holds a number that is not a texel".into()));
                 }
@@ -119,7 +123,13 @@ pub fn from_extras(v: &Value, origin: DVec3) -> Result<Vec<PatchMesh>, String> {
                         return Err(at(format!("luxel {k}'s normal is zero")));
                     };
                     let pos = (DVec3::new(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2]) - origin).as_vec3();
-                    l.push(PatchLuxel { texel: [texel[2 * k] as u32, texel[2 * k + 1] as u32], pos, normal });
+                    let v = |i: usize| nudge.as_ref().map(|d| Vec3::new(d[i] as f32, d[i + 1] as f32, d[i + 2] as f32));
+                    let nudge = match (v(6 * k), v(6 * k + 3)) {
+                        (Some(a), Some(b)) if a.is_normalized() && b.is_normalized() => Some([a, b]),
+                        (None, None) => None,
+                        _ => return Err(at(format!("luxel {k}'s nudge directions are not unit vectors"))),
+                    };
+                    l.push(PatchLuxel { texel: [texel[2 * k] as u32, texel[2 * k + 1] as u32], pos, normal, nudge });
                 }
                 l
             }
@@ -383,18 +393,26 @@ mod tests {
         lux[0]["luxel_xyz"] = serde_json::json!([1, 2, 3, 4, 5, 6]);
         lux[0]["luxel_normal"] = serde_json::json!([0, 2, 0, 0, 0, 1]);
         let m = from_extras(&lux, DVec3::new(1.0, 0.0, 0.0)).unwrap();
-        assert_eq!(m[0].luxels, vec![PatchLuxel { texel: [3, 4], pos: Vec3::new(0.0, 2.0, 3.0), normal: Vec3::Y }, PatchLuxel { texel: [9, 6], pos: Vec3::new(3.0, 5.0, 6.0), normal: Vec3::Z }]);
+        assert_eq!(m[0].luxels, vec![PatchLuxel { texel: [3, 4], pos: Vec3::new(0.0, 2.0, 3.0), normal: Vec3::Y, nudge: None }, PatchLuxel { texel: [9, 6], pos: Vec3::new(3.0, 5.0, 6.0), normal: Vec3::Z, nudge: None }]);
         for (key, bad) in [
             ("luxel_texel", serde_json::json!([3, 4, 9])),
             ("luxel_texel", serde_json::json!([3, 4.5, 9, 6])),
             ("luxel_texel", serde_json::json!([3, -4, 9, 6])),
             ("luxel_xyz", serde_json::json!([1, 2, 3])),
             ("luxel_normal", serde_json::json!([0, 0, 0, 0, 0, 1])),
+            ("luxel_nudge", serde_json::json!([1, 0, 0, 0, 1, 0])),
+            ("luxel_nudge", serde_json::json!([1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 2])),
         ] {
             let mut b = lux.clone();
             b[0][key] = bad;
             assert!(from_extras(&b, DVec3::ZERO).is_err(), "{b}");
         }
+        // The nudge directions, when the record has them: two unit vectors per luxel.
+        let mut nudged = lux.clone();
+        nudged[0]["luxel_nudge"] = serde_json::json!([1, 0, 0, 0, 1, 0, 0, 0, 1, 0, -1, 0]);
+        let m = from_extras(&nudged, DVec3::ZERO).unwrap();
+        assert_eq!(m[0].luxels[0].nudge, Some([Vec3::X, Vec3::Y]));
+        assert_eq!(m[0].luxels[1].nudge, Some([Vec3::Z, Vec3::NEG_Y]));
         let mut half = lux.clone();
         half[0].as_object_mut().unwrap().remove("luxel_normal");
         assert!(from_extras(&half, DVec3::ZERO).is_err(), "points without normals");

@@ -187,10 +187,15 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 }
                 taken[y * w + x] = true;
                 let bf = b.map(|v| v as f32);
+                let mut row_axes = axes;
                 let (pos, normal) = match record_of_tri.get(t).copied().flatten().and_then(|k| patch_samples[k].get(&[x as u32, y as u32])) {
-                    // Where q3map2 sampled a curved patch's luxel (its offset included).
-                    Some(&(pos, normal)) => {
+                    // Where q3map2 sampled a curved patch's luxel (its offset included),
+                    // nudged out of solid half a unit along its own directions.
+                    Some(&(pos, normal, nudge)) => {
                         st.patch_luxels += 1;
+                        if let Some(d) = nudge {
+                            row_axes = d.map(|v| v * crate::scene::q3map2::CURVED_NUDGE_UNITS / crate::scene::q3map2::NUDGE_TEXELS * scene.units_m);
+                        }
                         (pos, normal)
                     }
                     None => {
@@ -235,7 +240,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                 } else {
                     pb.push(base);
                 }
-                texel_axes.push(axes);
+                texel_axes.push(row_axes);
                 st.luxels += 1;
             }
         }
@@ -267,7 +272,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
 }
 
 /// A curved patch's luxel samples by texel (`[x, y]` in its lightmap image): point, normal.
-type LuxelSamples = std::collections::HashMap<[u32; 2], (Vec3, Vec3)>;
+type LuxelSamples = std::collections::HashMap<[u32; 2], (Vec3, Vec3, Option<[Vec3; 2]>)>;
 
 /// Where q3map2 sampled the luxels of the curved lightmapped patches that the scene's
 /// `q3_patch_luxels` record still describes
@@ -307,7 +312,7 @@ fn patch_luxel_samples(scene: &Scene, st: &mut LuxelStats) -> (Vec<Option<usize>
         for t in tris {
             record_of_tri[t as usize] = Some(samples.len());
         }
-        samples.push(pm.luxels.iter().filter(|l| l.pos.is_finite() && l.normal.is_finite()).map(|l| (l.texel, (l.pos, l.normal))).collect());
+        samples.push(pm.luxels.iter().filter(|l| l.pos.is_finite() && l.normal.is_finite()).map(|l| (l.texel, (l.pos, l.normal, l.nudge))).collect());
     }
     (record_of_tri, samples)
 }
@@ -778,8 +783,8 @@ mod tests {
         let at_centre = rows(&scene, &Target::empty(4), 3.0);
         let tilted = Vec3::new(0.0, 1.0, 0.2).normalize();
         let luxels = vec![
-            PatchLuxel { texel: [3, 4], pos: Vec3::new(0.3, 0.04, 0.45), normal: tilted },
-            PatchLuxel { texel: [9, 6], pos: Vec3::new(1.9, 0.04, 0.95), normal: Vec3::Y },
+            PatchLuxel { texel: [3, 4], pos: Vec3::new(0.3, 0.04, 0.45), normal: tilted, nudge: None },
+            PatchLuxel { texel: [9, 6], pos: Vec3::new(1.9, 0.04, 0.95), normal: Vec3::Y, nudge: None },
         ];
         let pos = vec![Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 1.0), Vec3::new(2.0, 0.0, 1.0)];
         scene.patch_luxels = vec![PatchMesh { shader: "floor".into(), width: 2, height: 2, pos, normal: vec![Vec3::Y; 4], area_m2: 2.0, rgb: Vec::new(), point_area_m2: Vec::new(), luxels }];
