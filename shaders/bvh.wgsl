@@ -29,12 +29,13 @@ fn slab(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
     return !(near > far);
 }
 
-// Barycentric slack of the hit test: a ray through the edge two triangles share hits
-// one of them (the CPU's `trace::bvh::EDGE_SLACK`).
+// Barycentric slack of the shadow rays' hit test: a ray through the edge two triangles
+// share hits one of them (the CPU's `trace::bvh::EDGE_SLACK`; first-hit walks pass 0).
 const EDGE_SLACK: f32 = 1e-5;
 
-// Moeller-Trumbore, two-sided; returns the ray parameter or -1.
-fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
+// Moeller-Trumbore, two-sided, barycentric coordinates within [-slack, 1 + slack];
+// returns the ray parameter or -1.
+fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, slack: f32) -> f32 {
     let e1 = tri.e1.xyz;
     let e2 = tri.e2.xyz;
     let p = cross(d, e2);
@@ -45,12 +46,12 @@ fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>) -> f32 {
     let inv = 1.0 / det;
     let s = o - tri.v0.xyz;
     let u = dot(s, p) * inv;
-    if (u < -EDGE_SLACK || u > 1.0 + EDGE_SLACK) {
+    if (u < -slack || u > 1.0 + slack) {
         return -1.0;
     }
     let q = cross(s, e1);
     let v = dot(d, q) * inv;
-    if (v < -EDGE_SLACK || u + v > 1.0 + EDGE_SLACK) {
+    if (v < -slack || u + v > 1.0 + slack) {
         return -1.0;
     }
     return dot(e2, q) * inv;
@@ -74,7 +75,7 @@ fn occluded(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
         }
         if (node.count > 0u) {
             for (var k = 0u; k < node.count; k = k + 1u) {
-                let t = intersect(tris[node.right_or_first + k], o, d);
+                let t = intersect(tris[node.right_or_first + k], o, d, EDGE_SLACK);
                 if (t > t_min && t < t_max) {
                     return true;
                 }

@@ -119,7 +119,7 @@ fn first_hit(o: vec3<f32>, d: vec3<f32>) -> Hit {
         }
         if (node.count > 0u) {
             for (var k = 0u; k < node.count; k = k + 1u) {
-                let t = intersect(tris[node.right_or_first + k], o, d);
+                let t = intersect(tris[node.right_or_first + k], o, d, 0.0);
                 if (t > 0.0 && t < limit) {
                     limit = t;
                     best = Hit(t, tri_index[node.right_or_first + k]);
