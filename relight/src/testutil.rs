@@ -85,6 +85,24 @@ pub fn room(n: usize) -> (Mesh, Rows) {
     (m, rows)
 }
 
+/// Appends the quad `corners` (in order, material 0, normal `normal`) to `mesh` as two
+/// triangles split along its diagonal from the first corner.
+pub fn push_quad(mesh: &mut Mesh, corners: [[f32; 3]; 4], normal: glam::Vec3) {
+    let base = mesh.positions.len() as u32;
+    for p in corners {
+        mesh.positions.push(glam::Vec3::from(p));
+        mesh.normals.push(normal);
+        mesh.uv0.push(glam::Vec2::ZERO);
+        mesh.uv1.push(glam::Vec2::ZERO);
+        mesh.colors.push([1.0; 3]);
+        mesh.v_material.push(0);
+    }
+    mesh.reweld();
+    mesh.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+    mesh.tri_material.extend([0, 0]);
+    mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
+}
+
 /// A lightmapped material (no texture, overbright 2) for tests of the model's terms.
 pub fn material(name: &str) -> crate::scene::Material {
     crate::scene::Material { lightmap: Some(0), ..crate::scene::Material::plain(name, crate::scene::Lighting::Lightmap, 2) }

@@ -550,19 +550,7 @@ mod tests {
     fn wgpu_agrees_with_cpu() {
         let (mut mesh, mut rows) = room(8);
         // A pillar in the middle so that some shadow rays are blocked.
-        let base = mesh.positions.len() as u32;
-        for p in [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]] {
-            mesh.positions.push(Vec3::from(p));
-            mesh.normals.push(Vec3::Z);
-            mesh.uv0.push(glam::Vec2::ZERO);
-            mesh.uv1.push(glam::Vec2::ZERO);
-            mesh.colors.push([1.0; 3]);
-            mesh.v_material.push(0);
-        }
-        mesh.reweld();
-        mesh.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
-        mesh.tri_material.extend([0, 0]);
-        mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
         rows.sampling.falloff = 0.02;
         rows.sampling.inhibit = 0.01;
         // A third of the rows two-sided: the fourth light, outside the room, reaches those

@@ -519,18 +519,7 @@ mod tests {
         mesh.triangles.clear();
         mesh.tri_material.clear();
         mesh.tri_source.clear();
-        let base = mesh.positions.len() as u32;
-        for p in [[0.3, 0.1, 0.1], [0.3, 2.7, 0.1], [0.3, 2.7, 2.7], [0.3, 0.1, 2.7]] {
-            mesh.positions.push(Vec3::from(p));
-            mesh.normals.push(Vec3::X);
-            mesh.uv0.push(glam::Vec2::ZERO);
-            mesh.uv1.push(glam::Vec2::ZERO);
-            mesh.colors.push([1.0; 3]);
-        }
-        mesh.triangles.push([base, base + 1, base + 2]);
-        mesh.triangles.push([base, base + 2, base + 3]);
-        mesh.tri_material.extend([0, 0]);
-        mesh.tri_source.extend([0, 1]);
+        crate::testutil::push_quad(&mut mesh, [[0.3, 0.1, 0.1], [0.3, 2.7, 0.1], [0.3, 2.7, 2.7], [0.3, 0.1, 2.7]], Vec3::X);
         let bvh = Bvh::build(&mesh);
         let mut missed = 0;
         for k in 0..2000u32 {
