@@ -420,7 +420,7 @@ pub mod q3map2 {
     /// in order left, right, up, down, then the four diagonals (`MapSingleLuxel`).
     pub const NUDGE_TEXELS: f32 = 0.5;
     /// On a curved patch the same nudges go this far (Quake units) along two unit vectors
-    /// across the mapped triangle's plane (`MakeNormalVectors`), not along the lightmap's
+    /// across the plane its point was mapped with (`MakeNormalVectors`), not along the lightmap's
     /// axes: the record of each luxel carries them (convert's `patch_luxels`).
     pub const CURVED_NUDGE_UNITS: f32 = 0.5;
     /// A vertex-lit surface's vertex in solid is sampled instead this far away along the

@@ -99,8 +99,10 @@ pub struct LuxelStats {
 pub struct Luxels {
     /// Luxel rows first (those with a texel), then the vertex-lit rows.
     pub rows: Rows,
-    /// Per luxel row, the world step of one texel along the lightmap's x and y, m (the
-    /// triangle's lightmap mapping inverted; zero for vertex-lit rows).
+    /// Per luxel row, the two steps its sample is nudged along when in solid (times
+    /// `NUDGE_TEXELS`), m: for a face's luxel one texel along the lightmap's x and y (the
+    /// triangle's lightmap mapping inverted), for a curved patch's recorded luxel its own
+    /// two directions scaled so the nudge is `CURVED_NUDGE_UNITS`; zero for vertex-lit rows.
     pub texel_axes: Vec<[Vec3; 2]>,
     pub stats: LuxelStats,
 }
