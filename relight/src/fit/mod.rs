@@ -256,8 +256,14 @@ impl<'a> Fitter<'a> {
         let mut total = 0.0;
         let mut grads = vec![Vec3::ZERO; lights.len()];
         let unit = self.codec.unit;
+        // The nearest surface of each light on all cores (a BVH query each, a tenth of the
+        // placement's serial work at sixty lights); summed in order, the same bits.
+        let nearest: Vec<Option<(f32, Vec3)>> = {
+            use rayon::prelude::*;
+            lights.par_iter().map(|l| self.bvh.nearest(l.pos)).collect()
+        };
         for (j, l) in lights.iter().enumerate() {
-            if let Some((dist, near)) = self.bvh.nearest(l.pos) {
+            if let Some((dist, near)) = nearest[j] {
                 if dist < self.min_dist {
                     let u = 1.0 - dist / self.min_dist;
                     total += f0 * (u * u) as f64;

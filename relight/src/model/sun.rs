@@ -40,14 +40,15 @@ impl Sun {
 
     /// Adds the sun's irradiance to `e`.
     pub fn add_irradiance(&self, rows: &Rows, vis: &Visibility, e: &mut [[f64; 3]]) {
-        for (i, ei) in e.iter_mut().enumerate() {
+        use rayon::prelude::*;
+        e.par_iter_mut().enumerate().for_each(|(i, ei)| {
             let c = self.cos_at(rows, vis, i) as f64;
             if c > 0.0 {
                 for k in 0..3 {
                     ei[k] += self.rgb[k] as f64 * c;
                 }
             }
-        }
+        });
     }
 
     /// `(dF/dw, dF/dS)` for `rho = dF/dE`.

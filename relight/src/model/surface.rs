@@ -361,7 +361,8 @@ impl SurfaceBasis {
 
     /// Adds `sum_s L_s B_is` for the groups' radiances `l` (a group set to `None` is off).
     pub fn add_irradiance(&self, l: &[Option<[f32; 3]>], e: &mut [[f64; 3]]) {
-        for (i, ei) in e.iter_mut().enumerate() {
+        use rayon::prelude::*;
+        e.par_iter_mut().enumerate().for_each(|(i, ei)| {
             for &(g, b) in self.row(i) {
                 if let Some(Some(rgb)) = l.get(g as usize) {
                     for c in 0..3 {
@@ -369,7 +370,7 @@ impl SurfaceBasis {
                     }
                 }
             }
-        }
+        });
     }
 
     /// `dF/dL_s` per group.
