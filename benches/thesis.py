@@ -201,7 +201,7 @@ def main() -> None:
         w.writeheader()
         w.writerows(runs)
 
-    md = [f"# Our relight against the thesis's method\n", f"Machine: {machine()}; backends as the runs named them: {', '.join(sorted(adapters))}. Rays per light of the thesis's estimator: {rays}; "
+    md = [f"# Our relight against the thesis's method\n", f"Machine: {machine()}; backends as the runs named them: {'; '.join(sorted(adapters))}. Rays per light of the thesis's estimator: {rays}; "
           f"phase cap of its runs: {cap or 'none (the thesis: Adam 400, L-BFGS until it stops)'}; seeds {seeds}"
           + (f"; each run of the thesis's method stopped after {a.thesis_time_limit:g} s" if a.thesis_time_limit else "")
           + (f"; each run stopped after {a.time_limit:g} s" if a.time_limit else "") + ".",
@@ -209,7 +209,8 @@ def main() -> None:
           "Median over seeds, spread min-max; the time to within 1% is when the run's curve first came within 1% of its own best error.\n"]
     svg, y = [], 0
     for scene in scenes:
-        md += [f"## {Path(scene).stem if scene.endswith(('.glb', '.gltf')) else scene}\n", "| configuration | backend | target | final error (median) | spread | time to within 1% (s) | wall (s) | lights | evaluations |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+        label = Path(scene).stem if scene.endswith((".glb", ".gltf")) else scene
+        md += [f"## {label}\n", "| configuration | backend | target | final error (median) | spread | time to within 1% (s) | wall (s) | lights | evaluations |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
         groups: dict[tuple[str, str], list[dict]] = {}
         for r in runs:
             if r["scene"] == scene:
@@ -238,11 +239,11 @@ def main() -> None:
             mid = rs[len(rs) // 2]
             pts = [(c["time_s"], c["rel_error"]) for c in curves if c["scene"] == scene and c["config"] == name and c["backend"] == backend and c["seed"] == mid["seed"]]
             series.append((f"{name} ({backend})", pts, colours[(name, backend)], False))
-        svg.append(panel(0, y, f"{scene}: error against time (median seed)", "seconds", series, True))
+        svg.append(panel(0, y, f"{label}: error against time (median seed)", "seconds", series, True))
         allpts = [(r["wall"], r["error"]) for r in runs if r["scene"] == scene]
         front = pareto(allpts)
         scat = [(f"{n} ({b})", [(r["wall"], r["error"]) for r in groups[(n, b)]], colours[(n, b)], True) for (n, b) in sorted(groups)]
-        svg.append(panel(540, y, f"{scene}: final error against wall time (Pareto front)", "wall seconds", scat + [("Pareto front", front, "#000", False)], False))
+        svg.append(panel(540, y, f"{label}: final error against wall time (Pareto front)", "wall seconds", scat + [("Pareto front", front, "#000", False)], False))
         y += 400
     (out / "thesis.md").write_text("\n".join(md) + "\n")
     (out / "thesis.svg").write_text(f'<svg xmlns="http://www.w3.org/2000/svg" width="1080" height="{max(y, 400)}" font-family="sans-serif">\n<rect width="100%" height="100%" fill="white"/>\n' + "\n".join(svg) + "\n</svg>\n")
