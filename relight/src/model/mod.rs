@@ -232,10 +232,9 @@ fn bounce_step(k: [f32; 3], op: &Sparse, rho: &[[f32; 3]], v: &[[f64; 3]]) -> Ve
 /// Runs the forward chain from the lights' irradiance `e_lights` (see the module docs).
 pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_lights: &[[f32; 3]]) -> Forward {
     // Every step is row by row, so the loops run on all cores with each row's sums as in
-    // one loop (the same bits). On one core they were half of the main thread's work in
-    // oa_dm1's placement, which evaluates its subsample a thousand times: on 16 cores that
-    // serial part set the pace (with the penalty's queries on all cores too, oa_dm1 13.1 ->
-    // 10.7 s on an H200 machine's 16-core CPU, the same fit).
+    // one loop (the same bits on any number of threads). On one core they were half of
+    // what oa_dm1's placement, which evaluates its subsample a thousand times, did on its
+    // main thread alone; on 16 cores that serial part set the pace.
     let n = rows.len();
     let mut direct: Vec<[f64; 3]> = if e_lights.len() == n { e_lights.par_iter().map(|e| e.map(|v| v as f64)).collect() } else { vec![[0.0; 3]; n] };
     add_other_emitters(model, rows, bases, vis, &mut direct);
@@ -471,6 +470,22 @@ mod tests {
         model.minlight = Some([(0.5 * (totals[k] + totals[k - 1])) as f32; 3]);
         let ev = evaluate(&model, &rows, &bases, &vis, &mut cpu).unwrap();
         assert!(ev.f > 0.0);
+        // The forward chain's loops run on all cores: every term's evaluation and gradient
+        // are the same bits on any number of threads.
+        let e_lights = cpu.irradiance(&vis, &model.lights).unwrap();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+            pool.install(|| {
+                let fw = forward(&model, &rows, &bases, &vis, &e_lights);
+                let ev = evaluate(&model, &rows, &bases, &vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap();
+                (fw.x, fw.total, format!("{ev:?}"))
+            })
+        };
+        let one = on(1);
+        assert_eq!(one.2, format!("{ev:?}"));
+        for threads in [2, 3, 8] {
+            assert!(on(threads) == one, "{threads} threads");
+        }
         let f = |m: &Model| {
             let mut cpu = Cpu { rows: &rows, bvh: &bvh };
             evaluate(m, &rows, &bases, &vis, &mut cpu).unwrap().f
