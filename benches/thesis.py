@@ -9,7 +9,9 @@ by its schemes: Table 5.1's schemes 1-5 on a 9 x 9 grid, its basic schemes (one 
 Adam 0.1) on grids 5 to 13, Adam's step sizes 0.02-0.2 and L-BFGS on an 11 x 11 grid. Ours:
 `default` and `fast` on the luxel target, and `default` on the same vertex target as the
 thesis (the like-for-like error). Every configuration runs with three seeds (the estimator
-draws fresh rays every evaluation; our placement subsamples by seed).
+draws fresh rays every evaluation; our placement subsamples by seed; `--seeds` to choose),
+and `--thesis-time-limit` stops each run of the thesis's method where a sweep must fit a
+budget (a GPU lease).
 
 Writes, under OUT:
   thesis.csv       every run's curve: scene, config, seed, backend, target, time_s,

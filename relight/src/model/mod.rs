@@ -241,7 +241,7 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
     // T_0 = dirt (ambient + Filter D).
     let mut f = match filter_of(model, bases) {
         Some(op) => op.apply(&direct, None),
-        None => direct.par_iter().copied().collect(),
+        None => direct.clone(),
     };
     if let Some(a) = model.ambient {
         f.par_iter_mut().for_each(|x| (0..3).for_each(|c| x[c] += a[c] as f64));
@@ -257,7 +257,7 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
             passes.push(next);
         }
     }
-    let mut total: Vec<[f64; 3]> = passes[0].par_iter().copied().collect();
+    let mut total = passes[0].clone();
     for p in &passes[1..] {
         total.par_iter_mut().zip(p).for_each(|(t, v)| (0..3).for_each(|c| t[c] += v[c]));
     }
