@@ -176,11 +176,13 @@ pub fn group_longest_curves(bsp: &Bsp) -> HashMap<usize, f64> {
                 if !p.is_finite() {
                     continue;
                 }
+                // `as` saturates, so a coordinate far outside any map lands in the outermost
+                // cell and its neighbours are found with saturating steps.
                 let c = p.to_array().map(|x| (x / BORDER_EPSILON).floor() as i64);
                 for dx in -1..=1 {
                     for dy in -1..=1 {
                         for dz in -1..=1 {
-                            let Some(list) = cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else { continue };
+                            let Some(list) = cells.get(&[c[0].saturating_add(dx), c[1].saturating_add(dy), c[2].saturating_add(dz)]) else { continue };
                             for &(other, q) in list {
                                 if other != k && (p - q).abs().max_element() < BORDER_EPSILON {
                                     let (ra, rb) = (root(&mut parent, k), root(&mut parent, other));
@@ -469,6 +471,17 @@ mod tests {
         let mut broken = quarter();
         broken[4].xyz[0] = f32::NAN;
         assert!(q3map2_patch_lights(&map_of(&[broken]), &[(0, "lamp".into(), 1.0)], 8, 1.0).is_none());
+    }
+
+    #[test]
+    fn patches_at_the_ends_of_the_float_range_group_without_overflow() {
+        // Found by the bsp fuzz target: a control point at 1e30 lands in the cell
+        // i64::MAX, whose neighbour once overflowed.
+        let far = |s: f32| quarter().into_iter().map(|mut d| { d.xyz = d.xyz.map(|x| x * 0.0 + s); d }).collect::<Vec<_>>();
+        let b = map_of(&[far(1e30), far(1e30), far(-f32::MAX), quarter()]);
+        let longest = group_longest_curves(&b);
+        assert_eq!(longest.len(), 4);
+        assert!(longest.values().all(|l| l.is_finite()), "{longest:?}");
     }
 
     #[test]
