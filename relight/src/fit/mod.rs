@@ -116,6 +116,9 @@ pub struct Fitter<'a> {
     pub frozen_minlight: bool,
     /// The linear fit scales each kind of emitter as a whole ([`linear`]).
     pub kind_scales: bool,
+    /// The linear fit's recent light columns through the non-local chain, by their
+    /// whole input ([`linear::ColumnCache`]).
+    columns: linear::ColumnCache,
 }
 
 impl<'a> Fitter<'a> {
@@ -147,6 +150,7 @@ impl<'a> Fitter<'a> {
             frozen_emitters: false,
             frozen_minlight: false,
             kind_scales: false,
+            columns: linear::ColumnCache::default(),
         }
     }
 

@@ -68,6 +68,43 @@ impl Sparse {
         gather(&self.offsets, &self.entries, x, col)
     }
 
+    /// [`Sparse::apply`] to an `x` that is zero outside `support` (ascending rows): only
+    /// the rows with an entry into the support are gathered, each as `apply` gathers it
+    /// (the same bits); every other row of `y` is zero (`apply` sums zeros there).
+    /// Returns `y` and its support (ascending), or `None` when it would reach more than
+    /// `limit` rows (then the plain product costs about as much). The rows reached are
+    /// found through `S^T` ([`Sparse::apply_transposed`]'s, built on first use).
+    pub fn apply_supported(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>, support: &[u32], limit: usize) -> Option<(Vec<[f64; 3]>, Vec<u32>)> {
+        let t = self.transposed.get_or_init(|| Box::new(self.transpose()));
+        let (offsets, entries) = (&t.0, &t.1);
+        let n = self.rows();
+        let mut seen = vec![false; n];
+        let mut reached: Vec<u32> = Vec::new();
+        for &j in support {
+            let j = j as usize;
+            if j + 1 >= offsets.len() {
+                continue;
+            }
+            for &(i, _) in &entries[offsets[j] as usize..offsets[j + 1] as usize] {
+                let i = i as usize;
+                if i < n && !seen[i] {
+                    seen[i] = true;
+                    reached.push(i as u32);
+                    if reached.len() > limit {
+                        return None;
+                    }
+                }
+            }
+        }
+        reached.sort_unstable();
+        let values: Vec<[f64; 3]> = reached.par_iter().with_min_len(1024).map(|&i| gather_row(self.row(i as usize), x, col)).collect();
+        let mut y = vec![[0.0f64; 3]; n];
+        for (&i, v) in reached.iter().zip(values) {
+            y[i as usize] = v;
+        }
+        Some((y, reached))
+    }
+
     /// `y = S^T x` (the same optional column factor applied on the output side), with
     /// `x.len()` rows (the operators here are square).
     pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
@@ -115,17 +152,21 @@ impl Sparse {
 fn gather(offsets: &[u32], entries: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
     (0..offsets.len().saturating_sub(1))
         .into_par_iter()
-        .map(|i| {
-            let mut y = [0.0f64; 3];
-            for &(j, w) in &entries[offsets[i] as usize..offsets[i + 1] as usize] {
-                let f = col.map_or([1.0f32; 3], |a| a[j as usize]);
-                for c in 0..3 {
-                    y[c] += w as f64 * f[c] as f64 * x[j as usize][c];
-                }
-            }
-            y
-        })
+        .map(|i| gather_row(&entries[offsets[i] as usize..offsets[i + 1] as usize], x, col))
         .collect()
+}
+
+/// One row of [`gather`]: `sum_k w_k col_{j_k} x_{j_k}`, in the row's order.
+#[inline]
+fn gather_row(row: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> [f64; 3] {
+    let mut y = [0.0f64; 3];
+    for &(j, w) in row {
+        let f = col.map_or([1.0f32; 3], |a| a[j as usize]);
+        for c in 0..3 {
+            y[c] += w as f64 * f[c] as f64 * x[j as usize][c];
+        }
+    }
+    y
 }
 
 /// The 8 neighbours of every luxel row in its raw lightmap (see the module docs), as

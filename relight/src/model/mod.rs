@@ -277,6 +277,123 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
     Forward { direct, passes, total, x }
 }
 
+/// A vector over the rows and the rows where it can be nonzero (ascending; `None`: any).
+#[derive(Clone)]
+struct Spread {
+    v: Vec<[f64; 3]>,
+    support: Option<Vec<u32>>,
+}
+
+/// A [`Spread`] that would reach more than this fraction of the rows is run dense.
+const SPREAD_DENSE_FRACTION: usize = 4;
+
+impl Spread {
+    /// `S v` ([`Sparse::apply`]'s values), over the rows the support reaches while they
+    /// are few.
+    fn apply(&self, op: &Sparse, col: Option<&[[f32; 3]]>) -> Spread {
+        if let Some(s) = &self.support {
+            if let Some((v, support)) = op.apply_supported(&self.v, col, s, self.v.len() / SPREAD_DENSE_FRACTION) {
+                return Spread { v, support: Some(support) };
+            }
+        }
+        Spread { v: op.apply(&self.v, col), support: None }
+    }
+
+    /// `f(row, value)` on every row of the support.
+    fn each(&mut self, f: impl Fn(usize, &mut [f64; 3]) + Sync) {
+        match &self.support {
+            Some(s) => s.iter().for_each(|&i| f(i as usize, &mut self.v[i as usize])),
+            None => self.v.par_iter_mut().enumerate().for_each(|(i, x)| f(i, x)),
+        }
+    }
+
+    /// `self += other`, row by row; the support becomes the union.
+    fn add(&mut self, other: &Spread) {
+        match (&mut self.support, &other.support) {
+            (Some(a), Some(b)) => {
+                b.iter().for_each(|&i| (0..3).for_each(|c| self.v[i as usize][c] += other.v[i as usize][c]));
+                let mut union = Vec::with_capacity(a.len() + b.len());
+                let (mut p, mut q) = (0, 0);
+                while p < a.len() || q < b.len() {
+                    let next = match (a.get(p), b.get(q)) {
+                        (Some(&x), Some(&y)) if x == y => {
+                            (p, q) = (p + 1, q + 1);
+                            x
+                        }
+                        (Some(&x), Some(&y)) if x < y => {
+                            p += 1;
+                            x
+                        }
+                        (Some(&x), None) => {
+                            p += 1;
+                            x
+                        }
+                        (_, Some(&y)) => {
+                            q += 1;
+                            y
+                        }
+                        (None, None) => unreachable!("the loop's condition"),
+                    };
+                    union.push(next);
+                }
+                *a = union;
+            }
+            _ => {
+                self.v.par_iter_mut().zip(&other.v).for_each(|(t, v)| (0..3).for_each(|c| t[c] += v[c]));
+                self.support = None;
+            }
+        }
+    }
+}
+
+/// The radiance of one light's column of the linear fit ([`crate::fit`]): [`forward`]'s
+/// `x` for a model whose only emitter is the per-unit irradiance `direct` (ascending
+/// `(row, W/m^2)`, the same in every channel; every other row dark), through `chain`'s
+/// filter, dirt and bounce (its emitters, ambient, minlight and gathered term are not
+/// read). Every row's value is [`forward`]'s to the bit (a zero may differ in sign);
+/// each step works on the rows the light's reach has spread to, while they are few (a
+/// light of a big map reaches a few percent of its rows, and each bounce pass spreads
+/// that to the rows that see them), and on all rows after.
+pub fn light_column(chain: &Model, rows: &Rows, bases: &Bases, direct: &[(u32, f32)]) -> Vec<[f64; 3]> {
+    let n = rows.len();
+    let mut d = vec![[0.0f64; 3]; n];
+    let mut support = Vec::with_capacity(direct.len());
+    for &(i, g) in direct {
+        if let Some(x) = d.get_mut(i as usize) {
+            *x = [g as f64; 3];
+            support.push(i);
+        }
+    }
+    let dirt_filter = |t: Spread| {
+        let mut t = match filter_of(chain, bases) {
+            Some(f) => t.apply(f, None),
+            None => t,
+        };
+        if let Some(d) = dirt_of(chain, bases) {
+            t.each(|i, x| x.iter_mut().for_each(|c| *c *= d[i] as f64));
+        }
+        t
+    };
+    // T_0 = dirt Filter D (no ambient in a column).
+    let mut pass = dirt_filter(Spread { v: d, support: Some(support) });
+    let mut total = pass.clone();
+    if let (Some(k), Some(op)) = (chain.bounce, &bases.bounce) {
+        for _ in 0..bases.bounces {
+            let mut next = pass.apply(op, Some(&bases.bounce_reflectance));
+            next.each(|_, x| (0..3).for_each(|c| x[c] *= k[c] as f64));
+            pass = dirt_filter(next);
+            total.add(&pass);
+        }
+    }
+    let mut x = vec![[0.0f64; 3]; n];
+    let radiance = |i: usize| [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / PI * total.v[i][c]);
+    match &total.support {
+        Some(s) => s.iter().for_each(|&i| x[i as usize] = radiance(i as usize)),
+        None => x.par_iter_mut().enumerate().for_each(|(i, v)| *v = radiance(i)),
+    }
+    x
+}
+
 /// The model's radiance per row (no gradient).
 pub fn radiance(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Vec<[f64; 3]>> {
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
@@ -399,6 +516,49 @@ mod tests {
     use crate::testutil::room;
     use crate::trace::bvh::Bvh;
     use glam::Vec3;
+
+    /// A light's column over the rows it reaches is the whole chain's, row by row: for
+    /// reaches of one row (spread a little per pass), a few, and half the rows (dense at
+    /// once), with each of the chain's steps on and off.
+    #[test]
+    fn a_light_column_over_its_reach_is_the_forward_chains() {
+        let (_, rows) = room(6);
+        let n = rows.len();
+        let ring = |w: f32, step: usize| {
+            let mut s = Sparse::empty();
+            for i in 0..n {
+                s.push_row([(i as u32, 1.0 - 2.0 * w), (((i + 1) % n) as u32, w), (((i + step) % n) as u32, w)]);
+            }
+            s
+        };
+        let bases = Bases {
+            dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
+            filter: Some(ring(0.2, 3)),
+            bounce: Some(ring(0.3, 7)),
+            bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
+            bounces: 8,
+            ..Bases::default()
+        };
+        let reaches: [Vec<u32>; 3] = [vec![5], vec![0, 17, 40, (n - 1) as u32], (0..n as u32).step_by(2).collect()];
+        for reach in &reaches {
+            let direct: Vec<(u32, f32)> = reach.iter().map(|&i| (i, 0.25 + 0.01 * i as f32)).collect();
+            let mut e = vec![[0.0f32; 3]; n];
+            direct.iter().for_each(|&(i, g)| e[i as usize] = [g; 3]);
+            for bits in 0..8 {
+                let chain = Model { bounce: (bits & 1 != 0).then_some([0.8, 0.6, 0.7]), dirt: bits & 2 != 0, filter: bits & 4 != 0, ..Model::default() };
+                let want = forward(&chain, &rows, &bases, &Visibility::default(), &e).x;
+                let got = light_column(&chain, &rows, &bases, &direct);
+                assert_eq!(got.len(), n);
+                for i in 0..n {
+                    for c in 0..3 {
+                        // The same value; a zero may differ in sign only.
+                        assert!(got[i][c].to_bits() == want[i][c].to_bits() || (got[i][c] == 0.0 && want[i][c] == 0.0), "reach {} chain {bits} row {i}: {} vs {}", reach.len(), got[i][c], want[i][c]);
+                    }
+                }
+                assert!(got.iter().any(|x| x[0] != 0.0));
+            }
+        }
+    }
 
     /// Every parameter's analytic gradient against central differences, with every term
     /// in the model at once (lights and a spot, sun, sky, surfaces, ambient, filter, dirt,
