@@ -149,6 +149,40 @@ impl ColumnCache {
     }
 }
 
+/// One row's share of the normal equations: `rhs_p += w b_p mid`, `gram_pq += w b_p b_q`
+/// over the row's nonzero values `(unknown, b)` (an `m x m` matrix).
+fn add_row(gram: &mut [f64], rhs: &mut [f64], m: usize, w: f64, mid: f64, basis: &[(usize, f64)]) {
+    for &(p, bp) in basis {
+        rhs[p] += w * bp * mid;
+        for &(q, bq) in basis {
+            gram[p * m + q] += w * bp * bq;
+        }
+    }
+}
+
+/// [`add_row`] for a row with a value for every unknown in order (`b.len() x b.len()`
+/// matrix), zeros included: each Gram row is one contiguous product (vectorised). The
+/// zeros [`add_row`] never sees add `+0` here, which leaves every sum as it was (sums
+/// that start at `+0` and add nonnegative products never become `-0`), so the two agree
+/// to the bit. Returns false, adding nothing, where a value is not finite (`0 x inf`).
+fn add_dense_row(gram: &mut [f64], rhs: &mut [f64], w: f64, mid: f64, b: &[f64]) -> bool {
+    let m = b.len();
+    if !b.iter().all(|v| v.is_finite() && *v >= 0.0) || !w.is_finite() {
+        return false;
+    }
+    for (p, &bp) in b.iter().enumerate() {
+        if bp == 0.0 {
+            continue;
+        }
+        rhs[p] += w * bp * mid;
+        let wbp = w * bp;
+        for (g, &bq) in gram[p * m..(p + 1) * m].iter_mut().zip(b) {
+            *g += wbp * bq;
+        }
+    }
+    true
+}
+
 /// The work one [`nnls_cd`] solve may take, multiply-adds.
 pub const NNLS_WORK: f64 = 2e9;
 
@@ -517,6 +551,7 @@ impl Fitter<'_> {
             .map(|ci| {
                 let mut block_nz: Vec<Vec<(usize, f64)>> = Vec::new();
                 let mut basis: Vec<(usize, f64)> = Vec::new();
+                let mut row_b: Vec<f64> = Vec::new();
                 let block = ci * chunk..((ci + 1) * chunk).min(n);
                 if dense_cols.is_none() {
                     unit_direct(block.clone(), &mut block_nz);
@@ -546,6 +581,16 @@ impl Fitter<'_> {
                         if w == 0.0 || floor[i][c] {
                             continue;
                         }
+                        let mid = (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl);
+                        // Dense columns, one unknown each: the row's values in column order
+                        // (`add_dense_row`, the same sums as `add_row`'s).
+                        if let (Some(d), false) = (&dense_cols, kinds) {
+                            row_b.clear();
+                            row_b.extend((0..cols.len()).map(|q| d[q][i][c]));
+                            if add_dense_row(&mut part.gram[c], &mut part.rhs[c], w, mid, &row_b) {
+                                continue;
+                            }
+                        }
                         basis.clear();
                         match &dense_cols {
                             Some(d) => basis.extend((0..cols.len()).map(|q| (local[unknown[q]] as usize, d[q][i][c] * unit[q][c])).filter(|b| b.1 != 0.0)),
@@ -561,14 +606,7 @@ impl Fitter<'_> {
                                 }
                             }
                         }
-                        let mid = (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl);
-                        let (gram, rhs) = (&mut part.gram[c], &mut part.rhs[c]);
-                        for &(p, bp) in &basis {
-                            rhs[p] += w * bp * mid;
-                            for &(q, bq) in &basis {
-                                gram[p * m + q] += w * bp * bq;
-                            }
-                        }
+                        add_row(&mut part.gram[c], &mut part.rhs[c], m, w, mid, &basis);
                     }
                 }
                 part
@@ -827,6 +865,31 @@ mod tests {
             assert_eq!(e.to_bits(), e0.to_bits(), "warmed by {warm:?}");
             assert_eq!(m, m0, "warmed by {warm:?}");
             assert!(hits > 0, "warmed by {warm:?}: no column was kept");
+        }
+    }
+
+    /// A dense row's share of the normal equations is the sparse one's to the bit, with
+    /// zeros among its values; a value that is not finite, or negative, is left to the
+    /// sparse form.
+    #[test]
+    fn a_dense_row_adds_what_its_nonzero_entries_add() {
+        let m = 7;
+        let (mut g1, mut r1) = (vec![0.0f64; m * m], vec![0.0f64; m]);
+        let (mut g2, mut r2) = (g1.clone(), r1.clone());
+        for row in 0..50u32 {
+            let b: Vec<f64> = (0..m as u32).map(|q| if (row + q) % 3 == 0 { 0.0 } else { crate::model::bounce::hash01(row, q) as f64 * 1e3f64.powi((q % 4) as i32 - 2) }).collect();
+            let (w, mid) = (0.3 + 0.01 * row as f64, 1.0 / (1.0 + row as f64));
+            let basis: Vec<(usize, f64)> = b.iter().copied().enumerate().filter(|e| e.1 != 0.0).collect();
+            super::add_row(&mut g1, &mut r1, m, w, mid, &basis);
+            assert!(super::add_dense_row(&mut g2, &mut r2, w, mid, &b));
+        }
+        assert!(g1.iter().zip(&g2).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(r1.iter().zip(&r2).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(g1.iter().filter(|v| **v != 0.0).count() > m);
+        for bad in [f64::INFINITY, f64::NAN, -1.0] {
+            let before = g2.clone();
+            assert!(!super::add_dense_row(&mut g2, &mut r2, 1.0, 1.0, &[1.0, bad, 0.0, 1.0, 1.0, 1.0, 1.0]));
+            assert_eq!(g2, before);
         }
     }
 }
