@@ -164,7 +164,8 @@ fn add_row(gram: &mut [f64], rhs: &mut [f64], m: usize, w: f64, mid: f64, basis:
 /// matrix), zeros included: each Gram row is one contiguous product (vectorised). The
 /// zeros [`add_row`] never sees add `+0` here, which leaves every sum as it was (sums
 /// that start at `+0` and add nonnegative products never become `-0`), so the two agree
-/// to the bit. Returns false, adding nothing, where a value is not finite (`0 x inf`).
+/// to the bit. Returns false, adding nothing, where a value is not finite (`0 x inf`) or
+/// negative (left to [`add_row`]).
 fn add_dense_row(gram: &mut [f64], rhs: &mut [f64], w: f64, mid: f64, b: &[f64]) -> bool {
     let m = b.len();
     if !b.iter().all(|v| v.is_finite() && *v >= 0.0) || !w.is_finite() {
