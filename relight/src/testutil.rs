@@ -128,3 +128,24 @@ pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene
         patch_luxels: Vec::new(),
     }
 }
+
+/// Synthetic chain bases over `n` rows for tests of the non-local chain: dirt, a filter
+/// and a bounce operator that each gather a row from itself and two others (rings of
+/// steps 1 and 3, and 1 and 7), a reflectance, and `bounces` passes.
+pub fn chain_bases(n: usize, bounces: usize) -> crate::model::Bases {
+    let ring = |w: f32, step: usize| {
+        let mut s = crate::model::Sparse::empty();
+        for i in 0..n {
+            s.push_row([(i as u32, 1.0 - 2.0 * w), (((i + 1) % n) as u32, w), (((i + step) % n) as u32, w)]);
+        }
+        s
+    };
+    crate::model::Bases {
+        dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
+        filter: Some(ring(0.2, 3)),
+        bounce: Some(ring(0.3, 7)),
+        bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
+        bounces,
+        ..crate::model::Bases::default()
+    }
+}

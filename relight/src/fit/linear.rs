@@ -815,21 +815,7 @@ mod tests {
     fn kept_columns_change_no_bit_of_the_fit() {
         let (mesh, rows) = room(6);
         let n = rows.len();
-        let ring = |w: f32, step: usize| {
-            let mut s = crate::model::Sparse::empty();
-            for i in 0..n {
-                s.push_row([(i as u32, 1.0 - 2.0 * w), (((i + 1) % n) as u32, w), (((i + step) % n) as u32, w)]);
-            }
-            s
-        };
-        let bases = Bases {
-            dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
-            filter: Some(ring(0.2, 3)),
-            bounce: Some(ring(0.3, 7)),
-            bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
-            bounces: 3,
-            ..Bases::default()
-        };
+        let bases = crate::testutil::chain_bases(n, 3);
         let bvh = Bvh::build(&mesh);
         let (lo, hi) = mesh.bounds();
         // Light 0 `dx` m off and `scale` times as bright.

@@ -524,21 +524,7 @@ mod tests {
     fn a_light_column_over_its_reach_is_the_forward_chains() {
         let (_, rows) = room(6);
         let n = rows.len();
-        let ring = |w: f32, step: usize| {
-            let mut s = Sparse::empty();
-            for i in 0..n {
-                s.push_row([(i as u32, 1.0 - 2.0 * w), (((i + 1) % n) as u32, w), (((i + step) % n) as u32, w)]);
-            }
-            s
-        };
-        let bases = Bases {
-            dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
-            filter: Some(ring(0.2, 3)),
-            bounce: Some(ring(0.3, 7)),
-            bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
-            bounces: 8,
-            ..Bases::default()
-        };
+        let bases = crate::testutil::chain_bases(n, 8);
         let reaches: [Vec<u32>; 3] = [vec![5], vec![0, 17, 40, (n - 1) as u32], (0..n as u32).step_by(2).collect()];
         for reach in &reaches {
             let direct: Vec<(u32, f32)> = reach.iter().map(|&i| (i, 0.25 + 0.01 * i as f32)).collect();
