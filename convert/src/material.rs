@@ -52,7 +52,10 @@ pub struct LightInfo {
     /// surface light's), largest channel 1.
     pub sky_color: [f64; 3],
     /// Blocks light: translucent shaders (`trans`, `water`, `slime`, `lava`) cast no
-    /// shadow unless `alphashadow` or `lightfilter`.
+    /// shadow unless `alphashadow` or `lightfilter`. Translucent when the script says so
+    /// or when the BSP's shader record does: the record keeps the flags the compile itself
+    /// read, which can differ from the scripts at hand (oacmpdm4's blue flames were
+    /// compiled translucent, and the scripts shipped today make them opaque).
     pub casts_shadow: bool,
 }
 
@@ -87,10 +90,10 @@ pub const DEFAULT_BACKSPLASH: (f64, f64) = (0.05, 23.0);
 /// Largest light image decoded to find a surface light's colour, bytes.
 const LIGHT_IMAGE_LIMITS: crate::texture::Limits = crate::texture::Limits { max_side: 8192, max_alloc: 1 << 28 };
 
-fn light_info(def: Option<&ShaderDef>, name: &str, vfs: &Vfs) -> LightInfo {
-    let Some(d) = def else { return LightInfo::default() };
-    let translucent = ["trans", "water", "slime", "lava"].iter().any(|p| d.has_parm(p));
-    let casts_shadow = !translucent || d.has_parm("alphashadow") || d.has_parm("lightfilter");
+fn light_info(def: Option<&ShaderDef>, r: &ShaderRef, vfs: &Vfs) -> LightInfo {
+    let name = r.name.as_str();
+    let casts_shadow = casts_shadow(def, r);
+    let Some(d) = def else { return LightInfo { casts_shadow, ..LightInfo::default() } };
     let emits = d.surface_light.is_some_and(|v| v > 0.0) || !d.sky_lights.is_empty();
     let color = if emits { d.light_rgb.map(normalized).unwrap_or_else(|| light_image_color(d, name, vfs)) } else { [1.0; 3] };
     let surface = d.surface_light.filter(|v| *v > 0.0).map(|value| {
@@ -99,6 +102,17 @@ fn light_info(def: Option<&ShaderDef>, name: &str, vfs: &Vfs) -> LightInfo {
         SurfaceLight { value, color, subdivide: d.light_subdivide.unwrap_or(DEFAULT_LIGHT_SUBDIVIDE), backsplash_fraction, backsplash_distance }
     });
     LightInfo { surface, sky_lights: d.sky_lights.clone(), sky_color: color, casts_shadow }
+}
+
+/// q3map2's rule for the surfaces its light stage traces (`PopulateWithBSPModel`): a
+/// translucent shader casts no shadow unless it is an alpha shadow or a light filter. The
+/// script's surface parameters and the BSP record's flags (what the compile read) each
+/// count.
+fn casts_shadow(def: Option<&ShaderDef>, r: &ShaderRef) -> bool {
+    let script = def.is_some_and(|d| ["trans", "water", "slime", "lava"].iter().any(|p| d.has_parm(p)));
+    let record = r.content_flags & crate::solids::TRANSLUCENT_CONTENTS != 0;
+    let filters = def.is_some_and(|d| d.has_parm("alphashadow") || d.has_parm("lightfilter")) || r.surface_flags & (surf::ALPHASHADOW | surf::LIGHTFILTER) != 0;
+    !(script || record) || filters
 }
 
 /// Scales a colour so its largest channel is 1 (white when it has none).
@@ -173,7 +187,7 @@ pub fn resolve(r: &ShaderRef, lib: &ShaderLibrary, vfs: &Vfs) -> ShaderInfo {
         scripted: def.is_some(),
         light: LightInfo::default(),
     };
-    info.light = light_info(def, &r.name, vfs);
+    info.light = light_info(def, r, vfs);
     if visibility != Visibility::Drawn && visibility != Visibility::Sky {
         return info;
     }
@@ -255,5 +269,27 @@ mod tests {
         let wall = resolve(&r("textures/x/wall", 0, 1), &lib, &vfs);
         assert_eq!(wall.visibility, Visibility::Drawn);
         assert_eq!(wall.missing.as_deref(), Some("textures/x/wall"));
+    }
+
+    #[test]
+    fn translucent_shaders_cast_no_shadow_by_the_script_or_by_the_compiles_record() {
+        let mut lib = ShaderLibrary::default();
+        lib.add_script(
+            "scripts/t.shader",
+            "textures/t/flame\n{\n surfaceparm nolightmap\n}\ntextures/t/glass\n{\n surfaceparm trans\n}\ntextures/t/grate\n{\n surfaceparm trans\n surfaceparm alphashadow\n}\n",
+        );
+        let vfs = Vfs::new();
+        let cast = |name: &str, sf: i32, cf: i32| resolve(&ShaderRef { name: name.into(), surface_flags: sf, content_flags: cf }, &lib, &vfs).light.casts_shadow;
+        // Opaque in the script and in the record.
+        assert!(cast("textures/t/flame", 0, 1));
+        // Opaque in today's script, compiled translucent (oacmpdm4's blue flames).
+        assert!(!cast("textures/t/flame", 0, 1 | contents::TRANSLUCENT));
+        assert!(!cast("textures/t/unscripted", 0, contents::WATER));
+        // Translucent in the script, whatever the record says.
+        assert!(!cast("textures/t/glass", 0, 1));
+        // Alpha shadows and light filters cast, from either source.
+        assert!(cast("textures/t/grate", 0, 1 | contents::TRANSLUCENT));
+        assert!(cast("textures/t/unscripted", surf::LIGHTFILTER, contents::TRANSLUCENT));
+        assert!(cast("textures/t/unscripted", 0, 1));
     }
 }

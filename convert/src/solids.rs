@@ -28,7 +28,7 @@ use std::collections::HashMap;
 
 /// Content flags of shaders that q3map2 counts as translucent to light (its
 /// `C_TRANSLUCENT`, given by these surface parameters).
-const TRANSLUCENT_CONTENTS: i32 = bsp::contents::TRANSLUCENT
+pub(crate) const TRANSLUCENT_CONTENTS: i32 = bsp::contents::TRANSLUCENT
     | bsp::contents::WATER
     | bsp::contents::SLIME
     | bsp::contents::LAVA
