@@ -1118,7 +1118,21 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
             continue;
         }
         let without = variant(false, fit);
-        let with = variant(true, fit);
+        let mut with = variant(true, fit);
+        // The bounce's factor is not a linear coefficient: the phases may have taken it
+        // near zero (with the ambient standing in for it) before the exact fits could
+        // weigh it. It is also tried at q3map2's own factor, 1 (`-bouncescale`), and the
+        // better of the two is its case (oacmpdm1 with its source lights: 0.2879 with the
+        // phases' 4e-6, 0.2411 at 1).
+        if name == "bounce" && entry.bounce.is_some_and(|k| k != [1.0; 3]) {
+            let mut m = entry.clone();
+            m.bounce = Some([1.0; 3]);
+            fit.model = m;
+            let e = fit.fit_linear();
+            if e < with.0 {
+                with = (e, fit.model.clone(), fit.vis.clone());
+            }
+        }
         lowest = lowest.min(with.0).min(without.0);
         let gains = with.0 < without.0 - TERM_GAIN;
         let allowance_spent = with.0 < without.0 && without.0 > lowest + TERM_GAIN;
@@ -1321,6 +1335,50 @@ mod tests {
         let asked = Options { surfaces: Optional::On, sky: Optional::On, ..Options::default() };
         let (p, _) = plan_terms(&asked, &scene(Some("-light -areascale 0 -skyscale 0")));
         assert_eq!((p.surfaces, p.sky), (Optional::On, Optional::On));
+    }
+
+    /// The phases can leave the bounce's factor near zero (the ambient standing in for it);
+    /// the decision then tries it at q3map2's factor too, and keeps it where the data was
+    /// bounced. Tried only at the entry's factor, the bounce was left out.
+    #[test]
+    fn a_bounce_the_phases_turned_down_is_decided_at_full_strength_too() {
+        use super::{decide_terms, Optional, Options, TermPlan};
+        use crate::backend::Cpu;
+        use crate::fit::Fitter;
+        use crate::model::{Light, Model};
+        use glam::Vec3;
+        let (mesh, mut rows) = crate::testutil::room(6);
+        let bases = crate::testutil::chain_bases(rows.len(), 3);
+        let bvh = crate::trace::bvh::Bvh::build(&mesh);
+        let (lo, hi) = mesh.bounds();
+        let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
+        let truth = Model { lights: lights.clone(), bounce: Some([1.0; 3]), ..Model::default() };
+        let x = {
+            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+            let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+            fit.model = truth.clone();
+            fit.refresh_visibility();
+            crate::model::radiance(&fit.model, &rows, &bases, &fit.vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap()
+        };
+        for (i, xi) in x.iter().enumerate() {
+            rows.lo[i] = xi.map(|v| v as f32 * 0.999);
+            rows.hi[i] = xi.map(|v| v as f32 * 1.001);
+            rows.weight[i] = [1.0; 3];
+            rows.lower[i] = [0.0; 3];
+        }
+        rows.finish();
+        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        fit.locked = vec![false; 2];
+        fit.model = Model { bounce: Some([4e-6; 3]), ..truth.clone() };
+        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false };
+        let mut reports = Vec::new();
+        decide_terms(&mut fit, &plan, &Options::default(), &mut reports);
+        let b = &reports[0];
+        assert_eq!(b.term, "bounce");
+        assert!(b.kept, "the bounce left out: {} without, {} with", b.rel_error_without, b.rel_error_with);
+        assert!(b.rel_error_with < 0.01, "the bounce at full strength explains the data: {}", b.rel_error_with);
+        assert_eq!(fit.model.bounce, Some([1.0; 3]));
     }
 
     use super::light_names;
