@@ -16,6 +16,8 @@
 //! emitter keeps its members' proportions and gets one multiplier per channel (q3map2's
 //! `-pointscale`, `-skyscale` for the sun and the sky light, `-areascale` for the surface
 //! lights), so a map's own sources are scaled as a compile could have, never moved apart.
+//! Then each kind is one column, the chain run once over the kind's emitters as they stand
+//! (`kind_columns`): exact through a non-local chain at any number of lights.
 
 use rayon::prelude::*;
 
