@@ -93,7 +93,7 @@ pub struct RelightArgs {
     pub fit: String,
     /// Bounced light: the light of the model's own emitters reflected by the scene, as a
     /// renderer with global illumination computes it (each pass scaled by a fitted factor
-    /// in (0, 1], q3map2's `-bouncescale`). With it the written lights are the direct
+    /// in (0, 4], 1 being q3map2's default `-bouncescale 0.25`). With it the written lights are the direct
     /// light only: render with global illumination. `auto`: as the map's recorded compile
     /// says (`-bounce N`), else where it lowers the error.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]

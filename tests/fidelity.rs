@@ -281,7 +281,7 @@ fn dirt_factors_are_q3map2s_own() {
 /// emitting from q3map2's patch mesh; on 2026-11-26 (sixth), oacmpdm4 0.1053 with its blue
 /// flames casting no shadow as the compile recorded, then with each kind of emitter run
 /// through the filter and the bounce at any number of lights and the bounce tried at
-/// q3map2's factor: 0.1656, 0.0585, 0.1516, 0.1053, 0.0785.
+/// q3map2's default factor: 0.1656, 0.0585, 0.1516, 0.1053, 0.0785.
 const TRUTH_SET: [(&str, f64); 5] = [("oacmpdm1", 0.19), ("oacmpdm2", 0.075), ("oacmpdm3", 0.17), ("oacmpdm4", 0.125), ("oacmpctf1", 0.095)];
 
 #[test]

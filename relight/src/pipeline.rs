@@ -1121,7 +1121,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
         let mut with = variant(true, fit);
         // The bounce's factor is not a linear coefficient: the phases may have taken it
         // near zero (with the ambient standing in for it) before the exact fits could
-        // weigh it. It is also tried at q3map2's own factor, 1 (`-bouncescale`), and the
+        // weigh it. It is also tried at q3map2's default strength, factor 1 (its `-bouncescale 0.25`), and the
         // better of the two is its case (oacmpdm1 with its source lights: 0.2879 with the
         // phases' 4e-6, 0.2411 at 1).
         if name == "bounce" && entry.bounce.is_some_and(|k| k != [1.0; 3]) {
@@ -1338,7 +1338,7 @@ mod tests {
     }
 
     /// The phases can leave the bounce's factor near zero (the ambient standing in for it);
-    /// the decision then tries it at q3map2's factor too, and keeps it where the data was
+    /// the decision then tries it at q3map2's default factor too, and keeps it where the data was
     /// bounced. Tried only at the entry's factor, the bounce was left out.
     #[test]
     fn a_bounce_the_phases_turned_down_is_decided_at_full_strength_too() {
