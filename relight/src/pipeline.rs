@@ -1353,20 +1353,7 @@ mod tests {
         let (lo, hi) = mesh.bounds();
         let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
         let truth = Model { lights: lights.clone(), bounce: Some([1.0; 3]), ..Model::default() };
-        let x = {
-            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
-            let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
-            fit.model = truth.clone();
-            fit.refresh_visibility();
-            crate::model::radiance(&fit.model, &rows, &bases, &fit.vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap()
-        };
-        for (i, xi) in x.iter().enumerate() {
-            rows.lo[i] = xi.map(|v| v as f32 * 0.999);
-            rows.hi[i] = xi.map(|v| v as f32 * 1.001);
-            rows.weight[i] = [1.0; 3];
-            rows.lower[i] = [0.0; 3];
-        }
-        rows.finish();
+        crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 1e-3);
         let mut cpu = Cpu { rows: &rows, bvh: &bvh };
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         fit.locked = vec![false; 2];

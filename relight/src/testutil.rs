@@ -149,3 +149,23 @@ pub fn chain_bases(n: usize, bounces: usize) -> crate::model::Bases {
         ..crate::model::Bases::default()
     }
 }
+
+/// Makes `rows`' data the radiance of `truth` (its visibility traced on the CPU): each value
+/// the middle of an interval `rel` of it wide on each side, nothing censored.
+pub fn data_from_model(rows: &mut crate::rows::Rows, bases: &crate::model::Bases, bvh: &crate::trace::bvh::Bvh, truth: &crate::model::Model, rel: f32) {
+    let (lo, hi) = (Vec3::splat(-1e3), Vec3::splat(1e3));
+    let x = {
+        let mut cpu = crate::backend::Cpu { rows, bvh };
+        let mut fit = crate::fit::Fitter::new(rows, bases, bvh, &mut cpu, lo, hi);
+        fit.model = truth.clone();
+        fit.refresh_visibility();
+        crate::model::radiance(&fit.model, rows, bases, &fit.vis, &mut crate::backend::Cpu { rows, bvh }).expect("the CPU backend does not fail")
+    };
+    for (i, xi) in x.iter().enumerate() {
+        rows.lo[i] = xi.map(|v| v as f32 * (1.0 - rel));
+        rows.hi[i] = xi.map(|v| v as f32 * (1.0 + rel));
+        rows.weight[i] = [1.0; 3];
+        rows.lower[i] = [0.0; 3];
+    }
+    rows.finish();
+}

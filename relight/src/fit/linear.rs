@@ -872,20 +872,7 @@ mod tests {
         let stated = Model { lights: lights.clone(), ambient: Some([0.01; 3]), bounce: Some([0.8, 0.6, 0.7]), dirt: true, filter: true, ..Model::default() };
         assert!(lights.len() > super::DENSE_COLUMNS);
         let truth = Model { lights: lights.iter().map(|l| Light { rgb: l.rgb.map(|c| c * 0.5), ..*l }).collect(), ambient: Some([0.03, 0.02, 0.025]), ..stated.clone() };
-        let x = {
-            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
-            let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
-            fit.model = truth.clone();
-            fit.refresh_visibility();
-            crate::model::radiance(&fit.model, &rows, &bases, &fit.vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap()
-        };
-        for (i, xi) in x.iter().enumerate() {
-            rows.lo[i] = xi.map(|v| v as f32 * 0.9995);
-            rows.hi[i] = xi.map(|v| v as f32 * 1.0005);
-            rows.weight[i] = [1.0; 3];
-            rows.lower[i] = [0.0; 3];
-        }
-        rows.finish();
+        crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 5e-4);
         let mut cpu = Cpu { rows: &rows, bvh: &bvh };
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         fit.kind_scales = true;
