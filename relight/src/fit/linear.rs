@@ -321,16 +321,24 @@ impl Fitter<'_> {
         let bare = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, gathered: None, minlight: None, ..m.clone() };
         let mut out = vec![Vec::new(); 5];
         for (p, x) in out.iter_mut().enumerate() {
-            if !cols.iter().any(|c| c.kind() == p) {
+            // The model with only this kind's terms, as `Col::kind` sorts them.
+            let mut one = bare.clone();
+            let mut any = false;
+            for col in cols.iter().filter(|c| c.kind() == p) {
+                any = true;
+                match *col {
+                    Col::Light(_) => one.lights = m.lights.clone(),
+                    Col::Sun => one.sun = m.sun,
+                    Col::Sky => one.sky = m.sky,
+                    Col::Surface(s) => one.surfaces[s] = m.surfaces[s],
+                    Col::Ambient => one.ambient = m.ambient,
+                    Col::Gathered => one.gathered = m.gathered,
+                }
+            }
+            if !any {
                 continue;
             }
-            let (one, e) = match p {
-                0 => (Model { lights: m.lights.clone(), ..bare.clone() }, self.backend.irradiance(&self.vis, &m.lights)?),
-                1 => (Model { sun: m.sun, sky: m.sky, ..bare.clone() }, Vec::new()),
-                2 => (Model { surfaces: m.surfaces.clone(), ..bare.clone() }, Vec::new()),
-                3 => (Model { ambient: m.ambient, ..bare.clone() }, Vec::new()),
-                _ => (Model { gathered: m.gathered, ..bare.clone() }, Vec::new()),
-            };
+            let e = if one.lights.is_empty() { Vec::new() } else { self.backend.irradiance(&self.vis, &one.lights)? };
             *x = crate::model::forward(&one, rows, bases, &self.vis, &e).x;
         }
         Ok(out)
