@@ -1062,28 +1062,41 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 /// per term considered.
 fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Vec<TermReport>) {
     type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
-    let mut list: Vec<(String, Optional, Set)> = Vec::new();
+    // Per term: its name, the plan's choice, how to switch it on or off from the entry,
+    // and another way to switch it on, tried too where it differs (the better is the
+    // term's case).
+    let mut list: Vec<(String, Optional, Set, Option<Set>)> = Vec::new();
     if fit.bases.bounce.is_some() {
-        list.push(("bounce".into(), terms.bounce, Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None })));
+        // The bounce's factor is not a linear coefficient: the phases may have taken it
+        // near zero (the ambient standing in for it) before the exact fits could weigh it.
+        // It is also tried at q3map2's default strength, factor 1 (its `-bouncescale
+        // 0.25`): oacmpdm1 with its source lights, 0.2879 with the phases' 4e-6, 0.2411
+        // at 1.
+        list.push((
+            "bounce".into(),
+            terms.bounce,
+            Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None }),
+            Some(Box::new(|m, _, on| m.bounce = on.then_some([1.0; 3]))),
+        ));
     }
     if fit.bases.dirt.is_some() {
-        list.push(("dirt".into(), terms.dirt, Box::new(|m, _, on| m.dirt = on)));
+        list.push(("dirt".into(), terms.dirt, Box::new(|m, _, on| m.dirt = on), None));
     }
     if fit.bases.filter.is_some() {
-        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on)));
+        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on), None));
     }
     if opts.fit == FitMode::All {
         if fit.model.sun.is_some() {
-            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None })));
+            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None }), None));
         }
         if fit.bases.sky.is_some() {
-            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None })));
+            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None }), None));
         }
         for (s, g) in fit.bases.surfaces.groups.clone().iter().enumerate() {
-            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None })));
+            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None }), None));
         }
     }
-    list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None })));
+    list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None }), None));
     // Which terms a model has on (the lights aside).
     let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
     // The entry's error as the phases saw it (their visibility; the value only).
@@ -1096,12 +1109,12 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
     let mut current = fit.fit_linear();
     // The lowest error the decisions have reached (what the allowance is counted from).
     let mut lowest = current;
-    for (name, choice, set) in list {
+    for (name, choice, set, also_on) in list {
         if fit.out_of_time() {
             break;
         }
         let entry = fit.model.clone();
-        let variant = |on: bool, fit: &mut Fitter| {
+        let variant = |set: &Set, on: bool, fit: &mut Fitter| {
             let mut m = entry.clone();
             set(&mut m, &entry, on);
             if m == entry {
@@ -1112,25 +1125,22 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
             (e, fit.model.clone(), fit.vis.clone())
         };
         if choice == Optional::Off {
-            let (e, m, v) = variant(false, fit);
+            let (e, m, v) = variant(&set, false, fit);
             (current, fit.model, fit.vis) = (e, m, v);
             out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: f64::NAN, note: "off".into() });
             continue;
         }
-        let without = variant(false, fit);
-        let mut with = variant(true, fit);
-        // The bounce's factor is not a linear coefficient: the phases may have taken it
-        // near zero (with the ambient standing in for it) before the exact fits could
-        // weigh it. It is also tried at q3map2's default strength, factor 1 (its `-bouncescale 0.25`), and the
-        // better of the two is its case (oacmpdm1 with its source lights: 0.2879 with the
-        // phases' 4e-6, 0.2411 at 1).
-        if name == "bounce" && entry.bounce.is_some_and(|k| k != [1.0; 3]) {
-            let mut m = entry.clone();
-            m.bounce = Some([1.0; 3]);
-            fit.model = m;
-            let e = fit.fit_linear();
-            if e < with.0 {
-                with = (e, fit.model.clone(), fit.vis.clone());
+        let without = variant(&set, false, fit);
+        let mut with = variant(&set, true, fit);
+        if let Some(also) = &also_on {
+            let (mut a, mut b) = (entry.clone(), entry.clone());
+            set(&mut a, &entry, true);
+            also(&mut b, &entry, true);
+            if a != b {
+                let other = variant(also, true, fit);
+                if other.0 < with.0 {
+                    with = other;
+                }
             }
         }
         lowest = lowest.min(with.0).min(without.0);
@@ -1236,7 +1246,7 @@ fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, 
     use std::fmt::Write;
     let m = fit.model.clone();
     let x = model::radiance(&m, rows, bases, &fit.vis, &mut *fit.backend)?;
-    let bare = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, minlight: None, gathered: None, ..m.clone() };
+    let bare = m.chain_only();
     let only_lights = model::radiance(&Model { lights: m.lights.clone(), ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_sky = model::radiance(&Model { sun: m.sun, sky: m.sky, ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_surfaces = model::radiance(&Model { surfaces: m.surfaces.clone(), ..bare }, rows, bases, &fit.vis, &mut *fit.backend)?;

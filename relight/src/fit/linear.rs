@@ -318,7 +318,7 @@ impl Fitter<'_> {
     /// model lacks). The chain is linear, so this is the sum of the kind's columns.
     fn kind_columns(&mut self, m: &Model, cols: &[Col]) -> crate::error::Result<Vec<Vec<[f64; 3]>>> {
         let (rows, bases) = (self.rows, self.bases);
-        let bare = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, gathered: None, minlight: None, ..m.clone() };
+        let bare = m.chain_only();
         let mut out = vec![Vec::new(); 5];
         for (p, x) in out.iter_mut().enumerate() {
             // The model with only this kind's terms, as `Col::kind` sorts them.
@@ -562,7 +562,7 @@ impl Fitter<'_> {
                     if let Some(x) = &cached[c] {
                         return x.clone();
                     }
-                    let mut one = Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; m.surfaces.len()], ambient: None, gathered: None, minlight: None, ..m.clone() };
+                    let mut one = m.chain_only();
                     match cols[c] {
                         // A light's column over the rows it reaches (the same values).
                         Col::Light(_) => {
@@ -633,9 +633,10 @@ impl Fitter<'_> {
                             continue;
                         }
                         let mid = (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl);
-                        // Dense columns, one unknown each: the row's values in column order
-                        // (`add_dense_row`, the same sums as `add_row`'s).
-                        if let (Some(d), false) = (&dense_cols, kinds) {
+                        // Dense columns, one unknown each (never with kinds: those have
+                        // `kind_cols`): the row's values in column order (`add_dense_row`,
+                        // the same sums as `add_row`'s).
+                        if let Some(d) = &dense_cols {
                             row_b.clear();
                             row_b.extend((0..cols.len()).map(|q| d[q][i][c]));
                             if add_dense_row(&mut part.gram[c], &mut part.rhs[c], w, mid, &row_b) {

@@ -82,6 +82,12 @@ impl Model {
             None => t,
         }
     }
+
+    /// The model's chain (bounce, dirt, filter) with no emitter, ambient, minlight or
+    /// gathered term: what one term's or one kind's radiance is run through.
+    pub fn chain_only(&self) -> Model {
+        Model { lights: Vec::new(), sun: None, sky: None, surfaces: vec![None; self.surfaces.len()], ambient: None, gathered: None, minlight: None, ..self.clone() }
+    }
 }
 
 /// What the model needs of the geometry, computed once per set of rows.
