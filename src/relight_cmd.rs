@@ -7,7 +7,7 @@ use std::time::Duration;
 use clap::Args;
 use q3gltf_relight::fit::IterRecord;
 use q3gltf_relight::rows::look::Look;
-use q3gltf_relight::pipeline::{self, BackendChoice, Estimator, FitMode, Init, Optional, Options, Progress, Subdivide, TargetSpace};
+use q3gltf_relight::pipeline::{self, BackendChoice, Estimator, FitMode, GammaChoice, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
 #[derive(Args)]
@@ -121,6 +121,14 @@ pub struct RelightArgs {
     /// q3map2's lightmap filter (`-filter`: a 3x3 blur of each light): as `--dirt`.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub filter: String,
+    /// q3map2's `-gamma` (its lightmaps store light L as 255 (L/255)^(1/gamma)) where the
+    /// file does not record it: `auto` estimates it (the reading of the bytes whose fit,
+    /// taken back to the stored bytes, is lowest; 1 unless another gains by the margin a
+    /// term must), `off` reads the bytes as they are, a number in [0.5, 4] reads them
+    /// through that gamma. The lights are then q3map2's linear light; the report's final
+    /// error is against the stored bytes either way.
+    #[arg(long, default_value = "auto", value_name = "auto|off|GAMMA")]
+    pub gamma: String,
     /// Chooses which vertices `--init auto` samples (every k-th vertex from offset seed % k);
     /// the same seed gives the same result.
     #[arg(long, default_value_t = 1)]
@@ -256,6 +264,14 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
         surfaces: optional(&a.surfaces),
         dirt: optional(&a.dirt),
         filter: optional(&a.filter),
+        gamma: match a.gamma.as_str() {
+            "auto" => GammaChoice::Auto,
+            "off" => GammaChoice::Off,
+            g => match g.parse::<f32>() {
+                Ok(v) if (0.5..=4.0).contains(&v) => GammaChoice::Fixed(v),
+                _ => return Err(format!("--gamma {g}: expected auto, off or a gamma from 0.5 to 4")),
+            },
+        },
         dump_rows: a.dump_rows.clone(),
         estimator: match a.estimator.as_str() {
             "tracing" => {
@@ -368,6 +384,7 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
         }
     }
     println!("  compile   {}", rep.compile_note);
+    println!("  gamma     {} ({})", rep.gamma.gamma, rep.gamma.how);
     for t in &rep.terms {
         println!("  term      {:<28} {} (error {:.4} without, {:.4} with)", t.term, if t.kept { "kept" } else { "off " }, t.rel_error_without, t.rel_error_with);
     }
@@ -377,7 +394,7 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     if rep.kept_input_state {
         println!("  kept      the input's own state: the refit ended worse than it");
     }
-    println!("  error     {:.4} -> {:.4} (relative, area-weighted)", rep.rel_error_initial, rep.rel_error_final);
+    println!("  error     {:.4} -> {:.4} (relative, area-weighted, against the stored bytes)", rep.rel_error_initial, rep.rel_error_final);
     let stages: Vec<String> = rep.stage_times_s.iter().map(|(n, t)| format!("{n} {t:.2}s")).collect();
     println!("  time      {:.2} s: {}", rep.total_time_s, stages.join(", "));
     let what = if matches!(rep.estimator, Estimator::Tracing { .. }) { "light paths traced" } else { "shadow rays" };

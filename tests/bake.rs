@@ -219,7 +219,12 @@ fn a_relit_real_map_bakes_to_relights_own_error_on_both_backends() {
     run(&["convert", map, "--game-dir", common::baseoa().to_str().unwrap(), "--game-dir", common::oacmp().to_str().unwrap(), "--lights-from", source.to_str().unwrap(), "-o", gltf.to_str().unwrap(), "-q"]);
     let relit = dir.join(format!("{map}.relit.glb"));
     let rep = dir.join("relight.json");
-    run(&["relight", gltf.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--init", "input", "--fit", "globals", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    // The bytes as stored (`--gamma off`): read through an estimated gamma (1.375 here),
+    // relight's error is dominated by the 144 vertex-lit vertices of its jump pads, which
+    // the bake does not count (34% of the residual; 0.0814 against the bake's 0.0667).
+    // The bake of a file that states a gamma is checked on the synthetic scene
+    // (`tests/relight.rs`).
+    run(&["relight", gltf.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--init", "input", "--fit", "globals", "--gamma", "off", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
     let relight_error = read_json(&rep)["rel_error_final"].as_f64().unwrap();
     let mut pages = Vec::new();
     for backend in ["cpu", "wgpu"] {

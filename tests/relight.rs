@@ -411,7 +411,7 @@ const SYNTHETIC_TRUTH: [([f64; 3], [f32; 3]); 3] = [([6.2, 4.6, -4.5], [70.0, 55
 /// With `sun`, the sample's walls become sky (extras `q3_sky`: no target, sunlight passes
 /// them) and [`SYNTHETIC_SUN`] shines in. Returns the glTF and the scene diagonal (m).
 fn synthetic_scene(dir: &Path, bounces: bool, sun: bool) -> (PathBuf, f64) {
-    synthetic_scene_with(dir, bounces, sun, Emitter::None, None)
+    synthetic_scene_with(dir, bounces, sun, Emitter::None, None, 1.0)
 }
 
 /// A surface light in the synthetic scene: none, declared by the material (extras
@@ -428,8 +428,9 @@ enum Emitter {
 const SYNTHETIC_SURFACE: (&str, [f32; 3]) = ("textures/sample/pillar", [8.0, 6.4, 4.8]);
 
 /// [`synthetic_scene`] with a surface light, and `spot`: the first truth light made a spot
-/// of this axis (world, normalised on use) and `radius_by_dist`.
-fn synthetic_scene_with(dir: &Path, bounces: bool, sun: bool, emitter: Emitter, spot: Option<([f32; 3], f32)>) -> (PathBuf, f64) {
+/// of this axis (world, normalised on use) and `radius_by_dist`; its bytes stored through
+/// q3map2's `-gamma gamma` (`255 (L / 255)^(1 / gamma)`), not recorded in the file.
+fn synthetic_scene_with(dir: &Path, bounces: bool, sun: bool, emitter: Emitter, spot: Option<([f32; 3], f32)>, gamma: f64) -> (PathBuf, f64) {
     use q3gltf_relight::io::gltf_in;
     use q3gltf_relight::model::{Light, Model, Sun};
     use q3gltf_relight::trace::bvh::Bvh;
@@ -475,7 +476,7 @@ fn synthetic_scene_with(dir: &Path, bounces: bool, sun: bool, emitter: Emitter, 
     for (i, &[tex, x, y]) in r.rows.texel.iter().enumerate() {
         let t = &mut scene.textures[tex as usize];
         // e = byte / 255 * 2^2 (CONVENTIONS.md), truncated; above 255 scaled down keeping hue.
-        let b = [0, 1, 2].map(|c| r.radiance[i][c] / (r.rows.albedo[i][c] as f64).max(1e-6) / (1u32 << ob) as f64 * 255.0);
+        let b = [0, 1, 2].map(|c| (r.radiance[i][c] / (r.rows.albedo[i][c] as f64).max(1e-6) / (1u32 << ob) as f64).max(0.0).powf(1.0 / gamma) * 255.0);
         let m = b.iter().copied().fold(255.0, f64::max);
         let o = ((y * t.width + x) * 4) as usize;
         for c in 0..3 {
@@ -528,6 +529,92 @@ fn synthetic_ground_truth_is_recovered() {
     assert!(err < 0.01, "relative error {err}");
     assert!(r["bounce"].is_null(), "no bounce in the data, yet the bounce term was kept: {}", r["terms"]);
     assert!(r["ambient"].is_null() && r["sun"].is_null(), "terms the data has not: {}", r["terms"]);
+    // From the truth's lights, where a gamma is estimated: none in the data, none read.
+    let start = with_truth_lights(&dir, &gltf);
+    run(&["relight", start.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", "input", "--fit", "globals", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    assert_eq!(r["gamma"]["gamma"].as_f64(), Some(1.0), "no gamma in the data, yet one was read: {}", r["gamma"]);
+    assert!(r["gamma"]["how"].as_str().unwrap().starts_with("estimated: 1"), "{}", r["gamma"]);
+}
+
+/// The synthetic scene `gltf` with [`SYNTHETIC_TRUTH`]'s lights in it as point lights
+/// (`start.gltf` in `dir`): the start of an `--init input` run.
+fn with_truth_lights(dir: &Path, gltf: &Path) -> PathBuf {
+    let mut json: Value = serde_json::from_slice(&std::fs::read(gltf).unwrap()).unwrap();
+    let lights = SYNTHETIC_TRUTH
+        .iter()
+        .enumerate()
+        .map(|(k, (p, rgb))| {
+            let m = rgb.iter().copied().fold(0.0f32, f32::max);
+            (serde_json::json!({ "type": "point", "color": rgb.map(|c| c / m), "intensity": m * 683.0 }), serde_json::json!({ "name": format!("truth_{k}"), "translation": p }))
+        })
+        .collect();
+    common::set_lights(&mut json, lights);
+    let start = dir.join("start.gltf");
+    std::fs::write(&start, serde_json::to_vec(&json).unwrap()).unwrap();
+    start
+}
+
+/// Synthetic ground truth stored through q3map2's `-gamma 1.5`, not recorded in the file
+/// (as the OACMP maps keep no command line).
+/// - Asked for (`--gamma 1.5`), the rows are read through it from the start: relit from
+///   scratch, the lights come back as q3map2's linear light (1% of the diagonal, 2% in
+///   intensity), three for three, at the quantisation floor against the stored bytes.
+/// - From the truth's own lights (`--init input --fit globals`, the truth set's run), the
+///   gamma is estimated within the search's step and the error is near the floor; read as
+///   stored (`--gamma off`) the same start fits far worse: what the estimate is for.
+/// - Relit from scratch without the gamma, the placement trades the lights' distance for
+///   it, and the gamma is not estimated there (the report says why).
+#[test]
+fn synthetic_ground_truth_through_a_compile_gamma_is_recovered() {
+    let dir = tmp("synthetic-gamma");
+    let (gltf, diag) = synthetic_scene_with(&dir, false, false, Emitter::None, None, 1.5);
+    let fit = |input: &Path, extra: &[&str], name: &str| {
+        let out = dir.join(format!("{name}.gltf"));
+        let rep = dir.join(format!("{name}.json"));
+        let mut args = vec!["relight", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"];
+        args.extend_from_slice(extra);
+        run(&args);
+        report(&rep)
+    };
+    // Asked.
+    let asked = fit(&gltf, &["--gamma", "1.5"], "asked");
+    assert_eq!(asked["gamma"]["gamma"].as_f64(), Some(1.5));
+    let found = lights_of(&asked);
+    assert_eq!(found.len(), SYNTHETIC_TRUTH.len(), "as many lights as the truth: {found:?}");
+    assert_recovered(&found, &synthetic_truth_cd(), [0.0; 3], 0.01 * diag, 0.02);
+    let err = asked["rel_error_final"].as_f64().unwrap();
+    assert!(err < 0.01, "relative error against the stored bytes {err}");
+    // Estimated from the truth's lights.
+    let start = with_truth_lights(&dir, &gltf);
+    let est = fit(&start, &["--init", "input", "--fit", "globals"], "estimated");
+    let g = est["gamma"]["gamma"].as_f64().unwrap();
+    assert!((g - 1.5).abs() <= 0.125 + 1e-9, "estimated gamma {g}: {}", est["gamma"]);
+    let err = est["rel_error_final"].as_f64().unwrap();
+    let plain = fit(&start, &["--init", "input", "--fit", "globals", "--gamma", "off"], "off");
+    assert_eq!(plain["gamma"]["gamma"].as_f64(), Some(1.0));
+    let err_plain = plain["rel_error_final"].as_f64().unwrap();
+    assert!(err < 0.03 && err < 0.5 * err_plain, "error against the stored bytes {err}, read as stored {err_plain}");
+    // The written file states the gamma on its lit materials: a re-run from it (the Blender
+    // loop) reads the bytes through it and starts where this fit ended.
+    let written: Value = serde_json::from_slice(&std::fs::read(dir.join("estimated.gltf")).unwrap()).unwrap();
+    let lit: Vec<&Value> = written["materials"].as_array().unwrap().iter().filter(|m| m["extras"]["q3_lighting"] == "lightmap").collect();
+    assert!(!lit.is_empty() && lit.iter().all(|m| m["extras"]["q3_lightmap_gamma"].as_f64() == Some(g)), "the lit materials state the gamma read");
+    let again = fit(&dir.join("estimated.gltf"), &["--init", "input", "--fit", "globals"], "again");
+    assert_eq!(again["gamma"]["gamma"].as_f64(), Some(1.0), "read as the file states it, no further gamma: {}", again["gamma"]);
+    assert!(again["gamma"]["how"].as_str().unwrap().starts_with("stated by the file"), "{}", again["gamma"]);
+    let e_again = again["rel_error_final"].as_f64().unwrap();
+    assert!(e_again <= err + 0.002, "the re-run ends at {e_again}, the fit it starts from at {err}");
+    // The bake reads the bytes as the file states them: at the floor too.
+    let baked = dir.join("bake");
+    run(&["bake", dir.join("estimated.gltf").to_str().unwrap(), "-o", baked.to_str().unwrap(), "--backend", "cpu", "-q"]);
+    let b: Value = serde_json::from_slice(&std::fs::read(baked.join("bake.json")).unwrap()).unwrap();
+    let e_bake = b["rel_error"].as_f64().unwrap();
+    assert!(e_bake <= err + 0.002, "the bake of the written file: {e_bake}, relight {err}");
+    // From scratch without it: not estimated, and said so.
+    let scratch = fit(&gltf, &[], "scratch");
+    assert_eq!(scratch["gamma"]["gamma"].as_f64(), Some(1.0));
+    assert!(scratch["gamma"]["how"].as_str().unwrap().contains("--init input"), "{}", scratch["gamma"]);
 }
 
 /// Synthetic ground truth with bounced light in the data: the bounce term is kept with a
@@ -740,7 +827,7 @@ fn synthetic_ground_truth_with_a_sun_is_recovered() {
 fn synthetic_ground_truth_with_a_surface_light_is_recovered() {
     for emitter in [Emitter::Lit, Emitter::Declared] {
         let dir = tmp(if emitter == Emitter::Lit { "synthetic-surface" } else { "synthetic-surface-off" });
-        let (gltf, diag) = synthetic_scene_with(&dir, false, false, emitter, None);
+        let (gltf, diag) = synthetic_scene_with(&dir, false, false, emitter, None, 1.0);
         let rep = dir.join("r.json");
         let out = dir.join("relit.gltf");
         run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
@@ -782,7 +869,7 @@ fn synthetic_ground_truth_with_a_spot_is_recovered() {
     let dir = tmp("synthetic-spot");
     let axis = glam::Vec3::new(0.2, -1.0, 0.1).normalize();
     let radius_by_dist = 0.6f32;
-    let (gltf, diag) = synthetic_scene_with(&dir, false, false, Emitter::None, Some((axis.to_array(), radius_by_dist)));
+    let (gltf, diag) = synthetic_scene_with(&dir, false, false, Emitter::None, Some((axis.to_array(), radius_by_dist)), 1.0);
     // The start: the truth's lights in the file, the spot perturbed.
     let mut json: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
     let mut lights = Vec::new();

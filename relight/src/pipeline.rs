@@ -159,6 +159,8 @@ pub struct Options {
     /// q3map2's `-dirt` and `-filter`.
     pub dirt: Optional,
     pub filter: Optional,
+    /// The compile's `-gamma` where the file does not record it ([`crate::rows::gamma`]).
+    pub gamma: GammaChoice,
     /// Write every row's data and the final model there as CSV.
     pub dump_rows: Option<PathBuf>,
     pub estimator: Estimator,
@@ -188,6 +190,7 @@ impl Default for Options {
             surfaces: Optional::Auto,
             dirt: Optional::Auto,
             filter: Optional::Auto,
+            gamma: GammaChoice::Auto,
             dump_rows: None,
             estimator: Estimator::Model,
         }
@@ -251,6 +254,33 @@ pub struct SurfaceReport {
     pub radiance: Option<[f32; 3]>,
 }
 
+/// How the compile's `-gamma` is read where the file does not record it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GammaChoice {
+    /// Estimated from the data: the reading whose fit, taken back to the stored bytes,
+    /// is lowest (1 unless another lowers the error by [`TERM_GAIN`]).
+    Auto,
+    /// The stored bytes as they are (gamma 1).
+    Off,
+    /// This gamma, as if the compile had recorded it.
+    Fixed(f32),
+}
+
+/// The compile gamma the data was read through, and how it was chosen.
+#[derive(Debug, Clone, Serialize)]
+pub struct GammaReport {
+    /// The gamma the fit read the data through (1: the stored bytes as they are).
+    pub gamma: f64,
+    /// "recorded", "asked", "estimated" or why it was not.
+    pub how: String,
+    /// Each gamma tried and its fit's relative error against the stored bytes.
+    pub tried: Vec<(f64, f64)>,
+    /// The final relative error in the fit's own reading (the phases' and the per
+    /// material breakdown's); `rel_error_final` is against the stored bytes.
+    pub rel_error_fit_reading: f64,
+}
+
 /// One term's decision: whether it stayed, and the error with and without it.
 #[derive(Debug, Clone, Serialize)]
 pub struct TermReport {
@@ -304,7 +334,10 @@ pub struct Report {
     /// How the compile's settings were chosen.
     pub compile_note: String,
     pub rel_error_initial: f64,
+    /// Against the data as stored (the file's own reading of its bytes), whatever gamma
+    /// the fit read it through (`gamma`).
     pub rel_error_final: f64,
+    pub gamma: GammaReport,
     pub lights: Vec<LightReport>,
     pub sun: Option<SunReport>,
     pub sky: Option<[f32; 3]>,
@@ -668,7 +701,16 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     st.done("bvh");
 
     progress.stage("rows");
-    let (rows, tstats, luxel_stats, target_backend) = build_rows(opts, &plan, &scene, &bvh)?;
+    let (stored_rows, tstats, luxel_stats, target_backend) = build_rows(opts, &plan, &scene, &bvh)?;
+    // The compile's gamma: asked for, the rows read through it from the start (the
+    // placement too); estimated at the end where the lights' places are given.
+    let e_full = scene.materials.iter().find(|m| m.lighting != Lighting::None).map_or(4.0, |m| m.decode_exact(1.0) as f64);
+    let gamma_plan = plan_gamma(opts, &scene, &stored_rows, tracing.is_some());
+    let read_through = match gamma_plan {
+        GammaPlan::Asked(g) => Some(crate::rows::gamma::regraded(&stored_rows, g, e_full)),
+        _ => None,
+    };
+    let rows: &Rows = read_through.as_ref().unwrap_or(&stored_rows);
     st.done("rows");
     if rows.is_empty() || !rows.has_data() {
         return Err(Error::unsupported(&opts.input, "no surface carries baked lighting (no lightmap on TEXCOORD_1, no vertex-lit material): nothing to fit"));
@@ -763,6 +805,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     };
     st.done("init");
 
+    // The rows read through an estimated compile gamma, if one is adopted (they must
+    // outlive the fitter that reads them).
+    let regraded = std::cell::OnceCell::new();
     let mut fit = Fitter::new(&rows, &bases, &bvh, backend.as_mut(), lo, hi);
     fit.deadline = deadline;
     // One clock for the whole run: the report's curve shows placement and fit together.
@@ -818,7 +863,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The thesis's method ends with its phases: no terms, pruning, polish or exact refit
     // (those run on our model).
     if tracing.is_none() {
-        decide_terms(&mut fit, &terms, opts, &mut term_reports);
+        decide_terms(&mut fit, &terms, opts, TERM_GAIN, &mut term_reports);
     }
     st.done("prune: terms");
     let mut pruned = 0;
@@ -883,16 +928,33 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             kept_input_state = true;
         }
     }
+    // The compile's gamma, where the file does not record it.
+    let (mut gamma_report, gamma_terms) = estimate_gamma(&mut fit, &regraded, &gamma_plan, &terms, opts, polish, e_full);
+    if let Some(t) = gamma_terms {
+        term_reports = t;
+    }
+    st.done("gamma");
     let final_eval = fit.eval();
     if let Some(e) = fit.failure.take() {
         return Err(e);
     }
+    // The headline error is against the stored bytes, whatever reading the fit used.
+    gamma_report.rel_error_fit_reading = final_eval.rel_error;
+    let rel_error_final = if gamma_report.gamma == 1.0 {
+        final_eval.rel_error
+    } else {
+        let m = fit.model.clone();
+        let x = model::radiance(&m, fit.rows, &bases, &fit.vis, &mut *fit.backend)?;
+        stored_rows.rel_error(&crate::rows::gamma::to_stored(&stored_rows, &x, gamma_report.gamma, e_full))
+    };
     st.done("prune: final");
+    // What follows describes the fit: in its own reading of the data.
+    let rows = fit.rows;
 
-    let shares = if tracing.is_some() { traced_energy_shares(&rows, &mut fit)? } else { energy_shares(&rows, &fit) };
-    let residual_by_material = residual_by_material(&scene, &rows, &bases, &mut fit)?;
+    let shares = if tracing.is_some() { traced_energy_shares(rows, &mut fit)? } else { energy_shares(rows, &fit) };
+    let residual_by_material = residual_by_material(&scene, rows, &bases, &mut fit)?;
     if let Some(path) = &opts.dump_rows {
-        dump_rows(path, &scene, &rows, &bases, &mut fit)?;
+        dump_rows(path, &scene, rows, &bases, &mut fit)?;
     }
     let m = fit.model.clone();
     let locked = fit.locked.clone();
@@ -914,7 +976,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
                 spot: l.spot.map(|s| OutSpot { axis: s.axis.as_dvec3(), radius_by_dist: s.radius_by_dist as f64, ramp_m: rows.sampling.spot_ramp as f64, typical_distance_m: spot_distance(&bvh, l) }),
                 source_node: src.map(|s| (s.node, s.parent_world)),
                 name: names[j].clone(),
-                extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
+                extras: json!({ "q3_relight": { "energy_share": shares[j], "rel_error": rel_error_final, "scheme": opts.scheme } }),
                 locked: locked[j],
             }
         })
@@ -947,7 +1009,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         }
     }
     let scene_extras = json!({
-        "rel_error": final_eval.rel_error,
+        "rel_error": rel_error_final,
         "lights": out_lights.len(),
         "ambient": m.ambient,
         "minlight": m.minlight,
@@ -964,9 +1026,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         to_sun: s.to_sun.as_dvec3(),
         rgb: s.rgb.map(|c| c as f64),
         name: scene.suns.first().map(|s| s.name.clone()).filter(|n| !n.is_empty()).unwrap_or_else(|| "sun".into()),
-        extras: json!({ "q3_relight": { "rel_error": final_eval.rel_error, "scheme": opts.scheme } }),
+        extras: json!({ "q3_relight": { "rel_error": rel_error_final, "scheme": opts.scheme } }),
     });
-    lights_out::write(&opts.input, &opts.output, &lights_out::Output { lights: &out_lights, sun: out_sun.as_ref(), replace_suns: terms.sun != Optional::Off, emissive: &emissive, scene_extras })?;
+    lights_out::write(&opts.input, &opts.output, &lights_out::Output { lights: &out_lights, sun: out_sun.as_ref(), replace_suns: terms.sun != Optional::Off, emissive: &emissive, scene_extras, lightmap_gamma: (gamma_report.gamma != 1.0).then_some(gamma_report.gamma) })?;
     st.done("write");
 
     let light_reports = out_lights
@@ -1015,7 +1077,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         compile_cmdline: scene.compile.cmdline.clone(),
         compile_note,
         rel_error_initial,
-        rel_error_final: final_eval.rel_error,
+        rel_error_final,
+        gamma: gamma_report,
         lights: light_reports,
         sun: out_sun.as_ref().map(|s| {
             let mx = s.rgb.iter().copied().fold(0.0f64, f64::max);
@@ -1060,7 +1123,7 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 /// by one, and each small loss counts against one allowance for them all (five surface
 /// lights of oacmpctf1, each under the gain, had added up to 0.0066). Appends one report
 /// per term considered.
-fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Vec<TermReport>) {
+fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, out: &mut Vec<TermReport>) {
     type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
     // Per term: its name, the plan's choice, how to switch it on or off from the entry,
     // and another way to switch it on, tried too where it differs (the better is the
@@ -1144,8 +1207,8 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
             }
         }
         lowest = lowest.min(with.0).min(without.0);
-        let gains = with.0 < without.0 - TERM_GAIN;
-        let allowance_spent = with.0 < without.0 && without.0 > lowest + TERM_GAIN;
+        let gains = with.0 < without.0 - gain;
+        let allowance_spent = with.0 < without.0 && without.0 > lowest + gain;
         let keep = choice == Optional::On || gains || allowance_spent;
         let note = match (choice, keep) {
             (Optional::On, _) => "on (asked, or the recorded compile)".to_string(),
@@ -1163,6 +1226,193 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, out: &mut Ve
     // relit file's own state starts and stays there).
     if terms_of(&fit.model) == terms_of(&entry.0) && !(current < entry.2) {
         (fit.model, fit.vis) = (entry.0, entry.1);
+    }
+}
+
+/// What the run does about the compile's gamma ([`crate::rows::gamma`]).
+#[derive(Debug, Clone, PartialEq)]
+enum GammaPlan {
+    /// Read the data through this gamma from the start (`--gamma G`).
+    Asked(f64),
+    /// Estimate it at the end, the lights' places being given (`--init input`).
+    Estimate,
+    /// Neither, and why.
+    Not(String),
+}
+
+/// Whether the gamma is asked for, estimated, or neither. Only where the file does not
+/// record one (convert reads `-gamma` from `_q3map2_cmdline` onto the materials), and
+/// only for the baked light as stored (`--look lightmap`, the model's estimator). The
+/// estimate needs the lights' places: a light further away falls off more slowly, as a
+/// gamma above 1 makes it seem to, so the placement (`--init auto`) would trade one for
+/// the other (a synthetic scene stored through `-gamma 1.5` and placed from its bytes as
+/// they are came back with nine lights for its three, 0.033 even through the right gamma).
+fn plan_gamma(opts: &Options, scene: &Scene, rows: &Rows, tracing: bool) -> GammaPlan {
+    // A recorded command line states the gamma, 1 where it has no `-gamma`.
+    let recorded = scene.materials.iter().filter(|m| m.lighting != Lighting::None).any(|m| m.lightmap_gamma != 1.0) || scene.compile.cmdline.is_some();
+    let not = |s: &str| GammaPlan::Not(s.to_string());
+    match opts.gamma {
+        GammaChoice::Off => not("off (asked)"),
+        _ if recorded => not("stated by the file (a recorded compile's, or the gamma a previous relight read it through); --gamma applies only where none is"),
+        _ if tracing => not("not read: --estimator tracing"),
+        _ if opts.look == Look::Game => not("not read: --look game reads the screen, not the compile's light"),
+        _ if !rows.has_data() => not("not read: no data"),
+        GammaChoice::Fixed(g) => GammaPlan::Asked(g as f64),
+        GammaChoice::Auto if matches!(opts.init, Init::Input) => GammaPlan::Estimate,
+        GammaChoice::Auto => not("1: estimated only from given lights (--init input); the placement would trade their distance for it. Ask with --gamma G"),
+    }
+}
+
+/// Gammas the estimate may choose: q3map2's `-gamma` as mappers set it (1, 1.5, 2.2 in
+/// recorded command lines), searched on this range.
+const GAMMA_RANGE: (f64, f64) = (1.0, 2.5);
+/// The search's first step and the smallest it halves to.
+const GAMMA_STEP: (f64, f64) = (0.25, 0.125);
+
+/// The compile's gamma where the file does not record it ([`crate::rows::gamma`]): each
+/// candidate reading of the data gets the exact linear fit of the model as it stands
+/// and its own decision on the terms (a bounce and an ambient stand in for a gamma
+/// differently), and is measured against the stored bytes; the best reading is adopted
+/// where it lowers that error by [`TERM_GAIN`] (the rule every term follows), and the
+/// fitter then reads the data through it (`regraded` holds those rows). Returns the
+/// report and, when a reading was adopted, its terms' decisions.
+#[allow(clippy::too_many_arguments)]
+fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Rows>, plan: &GammaPlan, terms: &TermPlan, opts: &Options, polish: crate::fit::Phase, e_full: f64) -> (GammaReport, Option<Vec<TermReport>>) {
+    let stored = fit.rows;
+    let mut report = GammaReport { gamma: 1.0, how: String::new(), tried: Vec::new(), rel_error_fit_reading: f64::NAN };
+    match plan {
+        GammaPlan::Estimate => {}
+        GammaPlan::Asked(g) => {
+            report.gamma = *g;
+            report.how = format!("asked: {g} (the rows read through it from the start)");
+            return (report, None);
+        }
+        GammaPlan::Not(why) => {
+            report.how = why.clone();
+            return (report, None);
+        }
+    }
+    // The run's own result in the stored reading, what an adopted reading must end below.
+    let main = (fit.model.clone(), fit.vis.clone(), fit.value().rel_error);
+    let e1 = main.2;
+    // The adopted reading's model: the nonlinear parameters polished (the bounce's factor
+    // above all; kept where it lowers the error), then every term decided under the
+    // usual gain, as the stored reading's were.
+    let settle = |fit: &mut Fitter| {
+        if !fit.out_of_time() {
+            let before = (fit.model.clone(), fit.vis.clone(), fit.value().f);
+            fit.run_phase("polish (gamma)", polish);
+            fit.fit_linear();
+            if !(fit.value().f <= before.2) {
+                (fit.model, fit.vis) = (before.0, before.1);
+            }
+        }
+        let mut reports = Vec::new();
+        decide_terms(fit, terms, opts, TERM_GAIN, &mut reports);
+        reports
+    };
+    // One candidate: its rows, the fit on them, the error against the stored bytes.
+    let try_gamma = |g: f64, fit: &mut Fitter<'a>| -> Option<(f64, f64, Rows, Model, crate::trace::visibility::Visibility)> {
+        let rows_g = crate::rows::gamma::regraded(stored, g, e_full);
+        // The model as it stands with its coefficients refitted, with an ambient, and
+        // with its bounce as it is, at q3map2's factor 1, or none (its factor is not a
+        // linear coefficient; a bounce and an ambient stand in for a gamma differently),
+        // the best of those: readings compared at their best, not through decisions at
+        // the margin.
+        let bounce_allowed = fit.bases.bounce.is_some() && terms.bounce != Optional::Off;
+        let (model, vis, own) = fit.on_rows(&rows_g, |t| {
+            // Each kind of emitter scaled as a whole, its members' proportions as fitted
+            // (a column per kind through the chain, not per light: on oa_dm1's 59 lights
+            // the per-light columns took 18 s over three readings, for no gain).
+            t.kind_scales = true;
+            let entry = Model { ambient: t.model.ambient.or(Some([1e-6; 3])), ..t.model.clone() };
+            let mut variants = vec![entry.clone()];
+            if bounce_allowed {
+                for b in [Some([1.0f32; 3]), None] {
+                    if entry.bounce != b && (b.is_some() || terms.bounce != Optional::On) {
+                        variants.push(Model { bounce: b, ..entry.clone() });
+                    }
+                }
+            }
+            let mut best: Option<(f64, Model, crate::trace::visibility::Visibility)> = None;
+            for v in variants {
+                t.model = v;
+                let e = t.fit_linear();
+                if best.as_ref().is_none_or(|b| e < b.0) {
+                    best = Some((e, t.model.clone(), t.vis.clone()));
+                }
+            }
+            let Some((_, m, v)) = best else { return (t.model.clone(), t.vis.clone(), f64::NAN) };
+            // Then every term that lowers the error at all (dirt, say, may pay in one
+            // reading and not in another).
+            (t.model, t.vis) = (m, v);
+            decide_terms(t, terms, opts, 0.0, &mut Vec::new());
+            let own = t.value().rel_error;
+            (t.model.clone(), t.vis.clone(), own)
+        });
+        let x = model::radiance(&model, &rows_g, fit.bases, &vis, &mut *fit.backend).ok()?;
+        let e = stored.rel_error(&crate::rows::gamma::to_stored(stored, &x, g, e_full));
+        e.is_finite().then_some((e, own, rows_g, model, vis))
+    };
+    // The stored reading itself, fitted as the candidates are (every term that lowers the
+    // error): the yardstick they must beat by the gain.
+    let e1 = match try_gamma(1.0, fit) {
+        Some((e, ..)) => e.min(e1),
+        None => e1,
+    };
+    report.tried = vec![(1.0, e1)];
+    let mut best: (f64, f64, Option<(Rows, Model, crate::trace::visibility::Visibility, f64)>) = (1.0, e1, None);
+    let mut step = GAMMA_STEP.0;
+    while step >= GAMMA_STEP.1 - 1e-9 && !fit.out_of_time() {
+        let mut moved = false;
+        for g in [best.0 + step, best.0 - step] {
+            let g = (g * 1e4).round() / 1e4;
+            if g < GAMMA_RANGE.0 - 1e-9 || g > GAMMA_RANGE.1 + 1e-9 || report.tried.iter().any(|t| (t.0 - g).abs() < 1e-6) || fit.out_of_time() {
+                continue;
+            }
+            let Some((e, own, rows_g, m, vis)) = try_gamma(g, fit) else { continue };
+            report.tried.push((g, e));
+            if e < best.1 {
+                best = (g, e, Some((rows_g, m, vis, own)));
+                moved = true;
+                break;
+            }
+        }
+        if !moved {
+            step *= 0.5;
+        }
+    }
+    report.tried.sort_by(|a, b| a.0.total_cmp(&b.0));
+    match best {
+        (g, e, Some((rows_g, m, vis, own))) if e < e1 - TERM_GAIN => {
+            let _ = regraded.set(rows_g);
+            if let Some(r) = regraded.get() {
+                fit.rows = r;
+                fit.model = m;
+                fit.vis = vis;
+                let reports = settle(fit);
+                // Settled (its terms decided under the gain), it must still end below the
+                // run's own result against the stored bytes; otherwise that stands.
+                let m = fit.model.clone();
+                let settled = model::radiance(&m, r, fit.bases, &fit.vis, &mut *fit.backend).ok().map(|x| stored.rel_error(&crate::rows::gamma::to_stored(stored, &x, g, e_full)));
+                if let Some(e_settled) = settled.filter(|e| *e < main.2) {
+                    report.gamma = g;
+                    report.rel_error_fit_reading = own;
+                    report.how = format!("estimated: the stored bytes read through gamma {g} fit them {e1:.4} -> {e:.4} ({e_settled:.4} with its terms decided)");
+                    return (report, Some(reports));
+                }
+                fit.rows = stored;
+                (fit.model, fit.vis) = (main.0, main.1);
+                report.how = format!("estimated: 1 (gamma {g} fitted the stored bytes {e1:.4} -> {e:.4}, but not below the run's own {:.4} with its terms decided)", main.2);
+                return (report, None);
+            }
+            report.how = "not estimated: internal".into();
+            (report, None)
+        }
+        (g, e, _) => {
+            report.how = if g == 1.0 { "estimated: 1 (no other reading fits the stored bytes better)".into() } else { format!("estimated: 1 (gamma {g} fits the stored bytes {e1:.4} -> {e:.4}, less than the gain a term must bring)") };
+            (report, None)
+        }
     }
 }
 
@@ -1370,7 +1620,7 @@ mod tests {
         fit.model = Model { bounce: Some([4e-6; 3]), ..truth.clone() };
         let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false };
         let mut reports = Vec::new();
-        decide_terms(&mut fit, &plan, &Options::default(), &mut reports);
+        decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
         let b = &reports[0];
         assert_eq!(b.term, "bounce");
         assert!(b.kept, "the bounce left out: {} without, {} with", b.rel_error_without, b.rel_error_with);

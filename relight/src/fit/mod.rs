@@ -154,6 +154,35 @@ impl<'a> Fitter<'a> {
         }
     }
 
+    /// Runs `f` on a fitter over other rows at the same points (another reading of the
+    /// same data: [`crate::rows::gamma`]) that starts where this one stands: its model,
+    /// visibility (the rows' geometry is the same, so no ray is traced again), clock and
+    /// switches. What `f` does there leaves this fitter as it was, bar the evaluations
+    /// counted and a backend failure.
+    pub fn on_rows<R>(&mut self, rows: &Rows, f: impl FnOnce(&mut Fitter) -> R) -> R {
+        debug_assert_eq!(rows.len(), self.rows.len());
+        let mut t = Fitter::new(rows, self.bases, self.bvh, &mut *self.backend, self.lo, self.hi);
+        t.vis = self.vis.clone();
+        t.model = self.model.clone();
+        t.locked = self.locked.clone();
+        t.codec = Codec { center: self.codec.center, unit: self.codec.unit };
+        t.min_dist = self.min_dist;
+        t.retrace_tol = self.retrace_tol;
+        t.sun_retrace_tol = self.sun_retrace_tol;
+        t.start = self.start;
+        t.deadline = self.deadline;
+        t.frozen_emitters = self.frozen_emitters;
+        t.frozen_minlight = self.frozen_minlight;
+        t.kind_scales = self.kind_scales;
+        let r = f(&mut t);
+        let (evaluations, failure) = (t.evaluations, t.failure.take());
+        self.evaluations += evaluations;
+        if self.failure.is_none() {
+            self.failure = failure;
+        }
+        r
+    }
+
     /// True when the time limit passed or the backend failed: every loop stops.
     pub fn out_of_time(&self) -> bool {
         self.failure.is_some() || self.deadline.is_some_and(|d| Instant::now() >= d)

@@ -84,6 +84,10 @@ pub struct Output<'a> {
     /// channel, W/(m^2 sr).
     pub emissive: &'a [(usize, [f64; 3])],
     pub scene_extras: Value,
+    /// The gamma the fit read the lightmap bytes through, where relight estimated it or
+    /// was asked for it (`rows::gamma`): written as `q3_lightmap_gamma` on every lit
+    /// material, so that bake, probe and a re-run read the bytes as this fit did.
+    pub lightmap_gamma: Option<f64>,
 }
 
 /// A fitted sun to write as a KHR_lights_punctual directional light.
@@ -271,6 +275,15 @@ pub fn write(input: &Path, output: &Path, out: &Output) -> Result<()> {
         let q = glam::DQuat::from_rotation_arc(DVec3::Z, sun.to_sun.normalize_or(DVec3::Y));
         new_roots.push(nodes.len());
         nodes.push(json!({ "name": sun.name, "rotation": [q.x, q.y, q.z, q.w], "extensions": { "KHR_lights_punctual": { "light": index } } }));
+    }
+    if let Some(g) = out.lightmap_gamma {
+        for m in root.get_mut("materials").and_then(Value::as_array_mut).into_iter().flatten() {
+            if let Some(ex) = m.get_mut("extras").and_then(Value::as_object_mut) {
+                if ex.get("q3_lighting").and_then(Value::as_str).is_some_and(|l| l != "none") {
+                    ex.insert("q3_lightmap_gamma".into(), json!(g));
+                }
+            }
+        }
     }
     if !out.emissive.is_empty() {
         let materials = root.get_mut("materials").and_then(Value::as_array_mut);

@@ -26,6 +26,7 @@
 //! [`Sampling`] holds how the data was sampled (q3map2's rules for its lightmaps);
 //! [`look`] turns the rows into what the game's screen shows instead of the baked light.
 
+pub mod gamma;
 pub mod look;
 pub mod luxel;
 pub mod projection;
