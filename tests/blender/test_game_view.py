@@ -176,22 +176,29 @@ def test_ambient_becomes_emission_in_cycles_units(bpy, dm1, workdir):
     assert _mean_seen_from_above(bpy, workdir / "ambient.exr") == pytest.approx(0.5 * 0.9 / math.pi, rel=1e-3)
 
 
-@pytest.mark.parametrize("e", [0.3, 2.0])
-def test_game_display_shows_light_the_way_the_engine_does(bpy, workdir, e):
+@pytest.mark.parametrize("e, gamma", [(0.3, None), (2.0, None), (0.3, 1.5)])
+def test_game_display_shows_light_the_way_the_engine_does(bpy, workdir, e, gamma):
     """game_display's compositor on a flat-lit wall of albedo 0.5 under relight's ambient
-    (e = E_a / pi): the pixel is D(D^-1(0.5) min(1, e)), the engine's formula, not 0.5 e."""
+    (e = E_a / pi): the pixel is D(D^-1(0.5) min(1, e)), the engine's formula, not 0.5 e.
+    With a gamma the wall's material states (`q3_lightmap_gamma`, as relight writes an
+    estimated one), the light is first stored as the compile did, 4 (e / 4)^(1/G)."""
     import game_display
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     _wall(bpy, "wall", 0.5)
+    if gamma is not None:
+        for m in bpy.data.materials:
+            m["q3_lightmap_gamma"] = gamma
+            m["q3_overbright_bits"] = 2
     bpy.context.scene["q3_relight"] = {"ambient": [e * math.pi] * 3}
     lightmap_preview.relit_materials()
     game_display.setup()
-    pixel = _mean_seen_from_above(bpy, workdir / f"display_{e}.exr")
+    pixel = _mean_seen_from_above(bpy, workdir / f"display_{e}_{gamma}.exr")
     t = compare.srgb_to_linear(np.array([1.0]))  # D(1) = 1: sanity of the shared helper
     assert t[0] == pytest.approx(1.0)
     enc = 1.055 * 0.5 ** (1 / 2.4) - 0.055
-    want = float(compare.srgb_to_linear(np.array([enc * min(1.0, e)]))[0])
+    shown = e if gamma is None else 4.0 * (e / 4.0) ** (1.0 / gamma)
+    want = float(compare.srgb_to_linear(np.array([enc * min(1.0, shown)]))[0])
     print(f"\ne = {e}: pixel {pixel:.5f}, engine formula {want:.5f}, linear {0.5 * e:.5f}")
     assert pixel == pytest.approx(want, rel=2e-3)
 

@@ -21,6 +21,11 @@ Usage, after importing a relit glTF (inside Blender, or with `import bpy`):
     game_display.setup()                 # passes on, compositor node group set
 
 Rendering with the compositor on (the default) then writes the game's picture.
+
+A map compiled with q3map2's `-gamma G` stores its light `e` as `2^ob (e / 2^ob)^(1/G)`
+(`ob` the overbright bits): the game shows that, not `e`. Where the relit file states the
+gamma its lightmaps were read through (the lit materials' `q3_lightmap_gamma`, recorded
+by the compile or estimated by relight), `setup` applies it before the engine's clamp.
 """
 from __future__ import annotations
 
@@ -31,12 +36,26 @@ from node_math import math as _math, srgb_decode, srgb_encode
 GROUP_NAME = "q3gltf game display"
 
 
-def setup(scene=None, denoise: bool = True) -> bpy.types.NodeTree:
+def stated_gamma() -> tuple[float, int]:
+    """The gamma and overbright bits the file's lit materials state (custom properties
+    `q3_lightmap_gamma`, `q3_overbright_bits`, from the glTF's material extras): the
+    largest gamma stated, 1 and 2 where none is."""
+    gammas = [float(m["q3_lightmap_gamma"]) for m in bpy.data.materials if "q3_lightmap_gamma" in m]
+    bits = [int(m["q3_overbright_bits"]) for m in bpy.data.materials if "q3_overbright_bits" in m]
+    return (max(gammas) if gammas else 1.0, max(bits) if bits else 2)
+
+
+def setup(scene=None, denoise: bool = True, gamma: float | None = None) -> bpy.types.NodeTree:
     """Turns on the passes it needs on every view layer and sets the scene's compositor to
     the game display group (made anew); the render engine becomes Cycles. With `denoise`,
     the diffuse light (Direct + Indirect, the noisy part) goes through the compositor's
-    Denoise node (OpenImageDenoise, HDR) before the formula. Returns the group."""
+    Denoise node (OpenImageDenoise, HDR) before the formula. `gamma`: the compile's, as
+    its lightmaps store light (default: what the materials state, `stated_gamma`).
+    Returns the group."""
     scene = scene or bpy.context.scene
+    stated, bits = stated_gamma()
+    gamma = stated if gamma is None else float(gamma)
+    full = float(2 ** bits)
     scene.render.engine = "CYCLES"  # the passes below are Cycles'
     for vl in scene.view_layers:
         vl.use_pass_diffuse_color = True
@@ -80,6 +99,9 @@ def setup(scene=None, denoise: bool = True) -> bpy.types.NodeTree:
     # e per channel: the diffuse light, plus the ambient's emission over the albedo
     # (Math's divide gives 0 where the albedo is 0).
     e = [_math(nodes, links, "ADD", light[c], _math(nodes, links, "DIVIDE", emit[c], col[c])) for c in range(3)]
+    if gamma != 1.0:
+        # What the lightmap stores and the game shows: 2^ob (e / 2^ob)^(1/G).
+        e = [_math(nodes, links, "MULTIPLY", _math(nodes, links, "POWER", _math(nodes, links, "DIVIDE", e[c], full), 1.0 / gamma), full) for c in range(3)]
     peak = _math(nodes, links, "MAXIMUM", _math(nodes, links, "MAXIMUM", e[0], e[1]), e[2])
     scale = _math(nodes, links, "DIVIDE", 1.0, _math(nodes, links, "MAXIMUM", peak, 1.0))
     diffuse = _math(nodes, links, "GREATER_THAN", _math(nodes, links, "ADD", _math(nodes, links, "ADD", col[0], col[1]), col[2]), 1e-6)
