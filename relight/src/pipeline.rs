@@ -333,6 +333,7 @@ pub struct Report {
     pub compile_cmdline: Option<String>,
     /// How the compile's settings were chosen.
     pub compile_note: String,
+    /// In the reading the fit starts in: the stored bytes, or through `--gamma G`.
     pub rel_error_initial: f64,
     /// Against the data as stored (the file's own reading of its bytes), whatever gamma
     /// the fit read it through (`gamma`).
@@ -1294,7 +1295,6 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
     }
     // The run's own result in the stored reading, what an adopted reading must end below.
     let main = (fit.model.clone(), fit.vis.clone(), fit.value().rel_error);
-    let e1 = main.2;
     // The adopted reading's model: the nonlinear parameters polished (the bounce's factor
     // above all; kept where it lowers the error), then every term decided under the
     // usual gain, as the stored reading's were.
@@ -1312,7 +1312,7 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
         reports
     };
     // One candidate: its rows, the fit on them, the error against the stored bytes.
-    let try_gamma = |g: f64, fit: &mut Fitter<'a>| -> Option<(f64, f64, Rows, Model, crate::trace::visibility::Visibility)> {
+    let try_gamma = |g: f64, fit: &mut Fitter<'a>| -> Option<(f64, Rows, Model, crate::trace::visibility::Visibility)> {
         let rows_g = crate::rows::gamma::regraded(stored, g, e_full);
         // The model as it stands with its coefficients refitted, with an ambient, and
         // with its bounce as it is, at q3map2's factor 1, or none (its factor is not a
@@ -1320,7 +1320,7 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
         // the best of those: readings compared at their best, not through decisions at
         // the margin.
         let bounce_allowed = fit.bases.bounce.is_some() && terms.bounce != Optional::Off;
-        let (model, vis, own) = fit.on_rows(&rows_g, |t| {
+        let (model, vis) = fit.on_rows(&rows_g, |t| {
             // Each kind of emitter scaled as a whole, its members' proportions as fitted
             // (a column per kind through the chain, not per light: on oa_dm1's 59 lights
             // the per-light columns took 18 s over three readings, for no gain).
@@ -1342,26 +1342,25 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
                     best = Some((e, t.model.clone(), t.vis.clone()));
                 }
             }
-            let Some((_, m, v)) = best else { return (t.model.clone(), t.vis.clone(), f64::NAN) };
+            let Some((_, m, v)) = best else { return (t.model.clone(), t.vis.clone()) };
             // Then every term that lowers the error at all (dirt, say, may pay in one
             // reading and not in another).
             (t.model, t.vis) = (m, v);
             decide_terms(t, terms, opts, 0.0, &mut Vec::new());
-            let own = t.value().rel_error;
-            (t.model.clone(), t.vis.clone(), own)
+            (t.model.clone(), t.vis.clone())
         });
         let x = model::radiance(&model, &rows_g, fit.bases, &vis, &mut *fit.backend).ok()?;
         let e = stored.rel_error(&crate::rows::gamma::to_stored(stored, &x, g, e_full));
-        e.is_finite().then_some((e, own, rows_g, model, vis))
+        e.is_finite().then_some((e, rows_g, model, vis))
     };
     // The stored reading itself, fitted as the candidates are (every term that lowers the
     // error): the yardstick they must beat by the gain.
     let e1 = match try_gamma(1.0, fit) {
-        Some((e, ..)) => e.min(e1),
-        None => e1,
+        Some((e, ..)) => e.min(main.2),
+        None => main.2,
     };
     report.tried = vec![(1.0, e1)];
-    let mut best: (f64, f64, Option<(Rows, Model, crate::trace::visibility::Visibility, f64)>) = (1.0, e1, None);
+    let mut best: (f64, f64, Option<(Rows, Model, crate::trace::visibility::Visibility)>) = (1.0, e1, None);
     let mut step = GAMMA_STEP.0;
     while step >= GAMMA_STEP.1 - 1e-9 && !fit.out_of_time() {
         let mut moved = false;
@@ -1370,10 +1369,10 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
             if g < GAMMA_RANGE.0 - 1e-9 || g > GAMMA_RANGE.1 + 1e-9 || report.tried.iter().any(|t| (t.0 - g).abs() < 1e-6) || fit.out_of_time() {
                 continue;
             }
-            let Some((e, own, rows_g, m, vis)) = try_gamma(g, fit) else { continue };
+            let Some((e, rows_g, m, vis)) = try_gamma(g, fit) else { continue };
             report.tried.push((g, e));
             if e < best.1 {
-                best = (g, e, Some((rows_g, m, vis, own)));
+                best = (g, e, Some((rows_g, m, vis)));
                 moved = true;
                 break;
             }
@@ -1384,7 +1383,7 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
     }
     report.tried.sort_by(|a, b| a.0.total_cmp(&b.0));
     match best {
-        (g, e, Some((rows_g, m, vis, own))) if e < e1 - TERM_GAIN => {
+        (g, e, Some((rows_g, m, vis))) if e < e1 - TERM_GAIN => {
             let _ = regraded.set(rows_g);
             if let Some(r) = regraded.get() {
                 fit.rows = r;
@@ -1397,7 +1396,6 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
                 let settled = model::radiance(&m, r, fit.bases, &fit.vis, &mut *fit.backend).ok().map(|x| stored.rel_error(&crate::rows::gamma::to_stored(stored, &x, g, e_full)));
                 if let Some(e_settled) = settled.filter(|e| *e < main.2) {
                     report.gamma = g;
-                    report.rel_error_fit_reading = own;
                     report.how = format!("estimated: the stored bytes read through gamma {g} fit them {e1:.4} -> {e:.4} ({e_settled:.4} with its terms decided)");
                     return (report, Some(reports));
                 }
