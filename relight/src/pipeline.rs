@@ -1260,7 +1260,7 @@ fn plan_gamma(opts: &Options, scene: &Scene, rows: &Rows, tracing: bool) -> Gamm
         _ if !rows.has_data() => not("not read: no data"),
         GammaChoice::Fixed(g) => GammaPlan::Asked(g as f64),
         GammaChoice::Auto if matches!(opts.init, Init::Input) => GammaPlan::Estimate,
-        GammaChoice::Auto => not("1: estimated only from given lights (--init input); the placement would trade their distance for it. Ask with --gamma G"),
+        GammaChoice::Auto => not("not estimated: only from the file's lights (--init input), as the placement would trade their distance for it; ask with --gamma G"),
     }
 }
 
