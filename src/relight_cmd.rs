@@ -122,11 +122,13 @@ pub struct RelightArgs {
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub filter: String,
     /// q3map2's `-gamma` (its lightmaps store light L as 255 (L/255)^(1/gamma)) where the
-    /// file does not record it: `auto` estimates it (the reading of the bytes whose fit,
-    /// taken back to the stored bytes, is lowest; 1 unless another gains by the margin a
-    /// term must), `off` reads the bytes as they are, a number in [0.5, 4] reads them
-    /// through that gamma. The lights are then q3map2's linear light; the report's final
-    /// error is against the stored bytes either way.
+    /// file does not record it: `auto` estimates it when relight starts from the file's
+    /// lights (`--init input`: the reading of the bytes whose fit, taken back to the stored
+    /// bytes, is lowest; 1 unless another gains by the margin a term must; a placement from
+    /// scratch would trade the lights' distance for it, so there it stays 1), `off` reads
+    /// the bytes as they are, a number in [0.5, 4] reads them through that gamma from the
+    /// start. The lights are then q3map2's linear light, the written file states the gamma
+    /// on its lit materials, and the report's final error is against the stored bytes.
     #[arg(long, default_value = "auto", value_name = "auto|off|GAMMA")]
     pub gamma: String,
     /// Chooses which vertices `--init auto` samples (every k-th vertex from offset seed % k);

@@ -1271,12 +1271,14 @@ const GAMMA_RANGE: (f64, f64) = (1.0, 2.5);
 const GAMMA_STEP: (f64, f64) = (0.25, 0.125);
 
 /// The compile's gamma where the file does not record it ([`crate::rows::gamma`]): each
-/// candidate reading of the data gets the exact linear fit of the model as it stands
-/// and its own decision on the terms (a bounce and an ambient stand in for a gamma
-/// differently), and is measured against the stored bytes; the best reading is adopted
-/// where it lowers that error by [`TERM_GAIN`] (the rule every term follows), and the
-/// fitter then reads the data through it (`regraded` holds those rows). Returns the
-/// report and, when a reading was adopted, its terms' decisions.
+/// candidate reading of the data gets the exact linear fit of the model as it stands,
+/// each kind of emitter scaled as a whole, with every term that lowers the error at all
+/// (a bounce and an ambient stand in for a gamma differently), and is measured against
+/// the stored bytes; the best reading is adopted where it lowers that error by
+/// [`TERM_GAIN`] (the rule every term follows) and, polished and its terms decided under
+/// that gain, still ends below the run's own result; the fitter then reads the data
+/// through it (`regraded` holds those rows). Returns the report and, when a reading was
+/// adopted, its terms' decisions.
 #[allow(clippy::too_many_arguments)]
 fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Rows>, plan: &GammaPlan, terms: &TermPlan, opts: &Options, polish: crate::fit::Phase, e_full: f64) -> (GammaReport, Option<Vec<TermReport>>) {
     let stored = fit.rows;

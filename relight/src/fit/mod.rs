@@ -165,7 +165,7 @@ impl<'a> Fitter<'a> {
         t.vis = self.vis.clone();
         t.model = self.model.clone();
         t.locked = self.locked.clone();
-        t.codec = Codec { center: self.codec.center, unit: self.codec.unit };
+        t.codec = self.codec;
         t.min_dist = self.min_dist;
         t.retrace_tol = self.retrace_tol;
         t.sun_retrace_tol = self.sun_retrace_tol;

@@ -55,6 +55,7 @@ impl ParamSet {
 }
 
 /// Encoding of a model with a given layout (lights and their kinds, terms present).
+#[derive(Debug, Clone, Copy)]
 pub struct Codec {
     pub center: Vec3,
     /// Position unit, m.
