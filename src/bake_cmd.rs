@@ -22,9 +22,10 @@ pub struct BakeArgs {
     /// Passes of bounced light (default: as relight recorded in the file, else none).
     #[arg(long)]
     pub bounces: Option<usize>,
-    /// Rays per texel for the bounce operator.
-    #[arg(long = "bounce-rays", default_value_t = 16)]
-    pub bounce_rays: usize,
+    /// Rays per texel for the bounce operator. Default: as relight chooses (a budget of 2^20
+    /// rays, 16 to 256 per texel).
+    #[arg(long = "bounce-rays")]
+    pub bounce_rays: Option<usize>,
     /// Write 16-bit float EXR samples (default 32-bit).
     #[arg(long)]
     pub half: bool,
@@ -80,7 +81,7 @@ pub fn run(a: BakeArgs) -> Result<(), String> {
         input: a.input,
         out_dir: a.output,
         bounces: a.bounces,
-        bounce_rays: a.bounce_rays.max(1),
+        bounce_rays: a.bounce_rays.map_or(0, |r| r.clamp(1, 1024)),
         half: a.half,
         padding: a.padding.min(64),
         previews: !a.no_previews,

@@ -98,9 +98,10 @@ pub struct RelightArgs {
     /// says (`-bounce N`), else where it lowers the error.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub bounce: String,
-    /// Rays per row for the bounce operator (rounded up to a square).
-    #[arg(long = "bounce-rays", default_value_t = 16)]
-    pub bounce_rays: usize,
+    /// Rays per row for the bounce operator (rounded up to a square). Default: as many as
+    /// a budget of 2^20 rays allows, 16 to 256 per row (16 on a map of 65k rows or more).
+    #[arg(long = "bounce-rays")]
+    pub bounce_rays: Option<usize>,
     /// A sun (directional light) for maps with sky: the sky shader's `q3map_sun` when the
     /// file has it as a directional light (convert `--entity-lights`), else searched;
     /// kept where it lowers the error; written as a KHR directional light in lux.
@@ -260,7 +261,7 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
         seed: a.seed,
         fit: if a.fit == "globals" { FitMode::Globals } else { FitMode::All },
         bounce: optional(&a.bounce),
-        bounce_rays: a.bounce_rays.clamp(1, 1024),
+        bounce_rays: a.bounce_rays.map_or(0, |r| r.clamp(1, 1024)),
         sun: optional(&a.sun),
         sky: optional(&a.sky),
         surfaces: optional(&a.surfaces),
@@ -386,6 +387,9 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
         }
     }
     println!("  compile   {}", rep.compile_note);
+    if let (Some(_), Some(t)) = (rep.bounce, &rep.bounce_transport) {
+        println!("  bounce    {} passes from {} pieces of q3map2's bounce lights, {} rays per row ({:.0}% landed)", rep.bounces, t.pieces, t.rays_per_row, 100.0 * t.landed as f64 / (t.rays as f64).max(1.0));
+    }
     println!("  gamma     {} ({})", rep.gamma.gamma, rep.gamma.how);
     for t in &rep.terms {
         println!("  term      {:<28} {} (error {:.4} without, {:.4} with)", t.term, if t.kept { "kept" } else { "off " }, t.rel_error_without, t.rel_error_with);

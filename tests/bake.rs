@@ -163,20 +163,24 @@ fn surface_mean(w: usize, px: &[[f32; 4]]) -> ([f64; 3], usize) {
     (s.map(|v| v / total.max(1e-9)), n)
 }
 
-/// A point light inside a closed box whose walls reflect `rho` (q3map2's bounce
-/// reflectance of their albedo): every watt it emits lands on the walls, and each pass of
-/// bounced light carries `rho` times the flux of the pass before. So the walls' mean
-/// irradiance with `N` passes is `1 + rho + ... + rho^N` times the direct light's, and the
-/// direct light's is the light's flux `4 pi I` over the walls' area.
+/// A closed box whose walls reflect `rho` (q3map2's bounce reflectance of their
+/// albedo). Lit uniformly (an ambient, no light), every pass of bounced light carries
+/// exactly `rho` times the pass before: every ray lands on a wall, and each of q3map2's
+/// bounce lights emits its samples' average, which for uniform light is the light. So
+/// the walls' mean with `N` passes is `1 + rho + ... + rho^N` times the light's. Lit by a
+/// point light, the direct light's mean is the light's flux `4 pi I` over the walls'
+/// area, and the bounce carries a little more than energy conservation says: q3map2's
+/// pieces average a grid of barycentric points that weighs a triangle's middle, where a
+/// central light is brightest.
 #[test]
 fn a_light_in_a_closed_box_bounces_as_energy_conservation_says() {
     let dir = tmp("box");
     let side = 4.0f32;
     let cd = 20_000.0;
-    let gltf = faces_gltf(&dir, &closed_box(side), (64, 32), 0.5, &[([0.3, 0.2, -0.1], cd)]);
-    let mut means = Vec::new();
-    for bounces in [0usize, 2] {
-        let out = dir.join(format!("bake{bounces}"));
+    let rho = q3gltf_relight::model::bounce::Q3MAP2_BOUNCE as f64 * q3gltf_relight::model::bounce::srgb_encode(0.5) as f64;
+    let want = 1.0 + rho + rho * rho;
+    let bake = |gltf: &Path, tag: &str, bounces: usize| -> [f64; 3] {
+        let out = dir.join(format!("bake-{tag}{bounces}"));
         run(&["bake", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--bounces", &bounces.to_string(), "--bounce-rays", "64", "--backend", "cpu", "-q"]);
         let rep = read_json(&out.join("bake.json"));
         assert_eq!(rep["bounces"], bounces);
@@ -185,8 +189,23 @@ fn a_light_in_a_closed_box_bounces_as_energy_conservation_says() {
         assert_eq!((w, h), (64, 32));
         let (m, n) = surface_mean(w, &px);
         assert_eq!(n, 6 * (CHART * CHART) as usize, "every texel of the six charts is a row");
-        means.push(m);
+        m
+    };
+    // Uniform light: an ambient recorded as a relit file records it, bounced at q3map2's scale.
+    let ambient_dir = dir.join("ambient");
+    std::fs::create_dir_all(&ambient_dir).unwrap();
+    let uniform = faces_gltf(&ambient_dir, &closed_box(side), (64, 32), 0.5, &[]);
+    let mut json = read_json(&uniform);
+    json["scenes"][0]["extras"] = json!({ "q3_relight": { "ambient": [0.2, 0.2, 0.2], "bounce_scale": [1.0, 1.0, 1.0], "bounces": 2 } });
+    std::fs::write(&uniform, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    let (a0, a2) = (bake(&uniform, "ambient", 0), bake(&uniform, "ambient", 2));
+    // Measured 2026-11-27: 1.5700 against 1.5700 in every channel.
+    for c in 0..3 {
+        let ratio = a2[c] / a0[c];
+        assert!((ratio / want - 1.0).abs() < 0.005, "channel {c}: two passes of uniform light give {ratio:.4} x the light, energy conservation says {want:.4} (rho {rho:.4})");
     }
+    let gltf = faces_gltf(&dir, &closed_box(side), (64, 32), 0.5, &[([0.3, 0.2, -0.1], cd)]);
+    let means = [bake(&gltf, "light", 0), bake(&gltf, "light", 2)];
     // Direct: e = E / pi, E averaged over the walls = 4 pi I / (6 s'^2), s' the side of
     // the cube q3map2's sample points form (one Quake unit inside each wall), to the
     // accuracy of the trapezoid rule on a 16 x 16 grid.
@@ -195,13 +214,13 @@ fn a_light_in_a_closed_box_bounces_as_energy_conservation_says() {
     let direct = 4.0 * std::f64::consts::PI * i_w_sr / (6.0 * s_samples * s_samples) / std::f64::consts::PI;
     let d = means[0][0];
     assert!((d / direct - 1.0).abs() < 0.02, "direct mean e {d}, flux over area says {direct}");
-    let rho = q3gltf_relight::model::bounce::Q3MAP2_BOUNCE as f64 * q3gltf_relight::model::bounce::srgb_encode(0.5) as f64;
-    let want = 1.0 + rho + rho * rho;
-    // Measured 2026-11-23: direct 1.2346 against 1.2517 (-1.4%), two passes 1.5429 x the
-    // direct light against 1.5700 (-1.7%, rho 0.4056; 64 rays per texel).
+    // Measured 2026-11-23, each ray bouncing the light where it landed: two passes 1.5429 x
+    // the direct light against 1.5700 (-1.7%); 2026-11-27, from q3map2's pieces: 1.7102
+    // (+8.9%; the -bounce 2 fixture, fitted landing each ray where it hit, wanted the bounce
+    // at 1.08 times q3map2's scale, from the pieces at 0.98-1.00).
     for c in 0..3 {
         let ratio = means[1][c] / means[0][c];
-        assert!((ratio / want - 1.0).abs() < 0.03, "channel {c}: two passes of bounce give {ratio:.4} x the direct light, energy conservation says {want:.4} (rho {rho:.4})");
+        assert!(ratio / want > 1.0 && ratio / want < 1.12, "channel {c}: two passes of bounce give {ratio:.4} x the direct light, energy conservation says {want:.4} and q3map2's pieces a little more (rho {rho:.4})");
     }
 }
 

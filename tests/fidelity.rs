@@ -85,7 +85,10 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// 0.0000 (0.1278 nudging the curved patch's luxels in the pillar half a luxel along the
 /// lightmap's axes instead of half a unit along q3map2's own directions; 0.0194 with a
 /// floor luxel's shadow ray slipping through a diagonal of the column's mesh), column
-/// 0.0018 -> 0.0000 (the same crack).
+/// 0.0018 -> 0.0000 (the same crack); on 2026-11-27 (second), bounce 0.0126 and combo 0.0160
+/// with the bounce re-emitted from q3map2's pieces, each averaging its samples (0.0457 and
+/// 0.0216 landing each ray on the row under it; bounce 0.0249 at 16 rays per row, 0.0146 at
+/// 64, 196 now).
 const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
@@ -104,13 +107,13 @@ const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("sun", 0.005, &[]),
     ("skylight", 0.045, &[]),
     ("skylight_bright", 0.05, &[]),
-    ("bounce", 0.055, &["bounce"]),
+    ("bounce", 0.02, &["bounce"]),
     ("dirt", 0.01, &["dirt"]),
     ("filter", 0.005, &["filter"]),
     ("gamma", 0.005, &[]),
     ("compensate", 0.01, &[]),
     ("minlight", 0.005, &[]),
-    ("combo", 0.03, &["bounce", "dirt", "filter"]),
+    ("combo", 0.022, &["bounce", "dirt", "filter"]),
     ("detail", 0.02, &[]),
 ];
 
@@ -160,6 +163,12 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         // before any clear point (no normal in q3map2: black) is left out.
         if name == "sunk" {
             assert_eq!((r["luxel"]["vertices_nudged"].as_u64(), r["luxel"]["vertices_in_solid"].as_u64()), (Some(1), Some(1)), "{}", r["luxel"]);
+        }
+        // The bounce comes from q3map2's pieces of each lit surface, traced with more
+        // rays per row than a big map gets (the fixture is small).
+        if name == "bounce" {
+            let t = &r["bounce_transport"];
+            assert!(t["pieces"].as_u64().is_some_and(|p| p > 10) && t["rays_per_row"].as_u64().is_some_and(|m| m >= 64), "{t}");
         }
         if name == "gamma" {
             assert!(recorded.contains("-gamma 1.5"), "{recorded}");

@@ -471,7 +471,8 @@ fn synthetic_scene_with(dir: &Path, bounces: bool, sun: bool, emitter: Emitter, 
         ..Model::default()
     };
     let passes = if bounces { SYNTHETIC_BOUNCES } else { 0 };
-    let r = q3gltf_relight::pipeline::render(&scene, &model, passes, 16).unwrap();
+    // The bounce traced as relight traces it by default.
+    let r = q3gltf_relight::pipeline::render(&scene, &model, passes, 0).unwrap();
     let ob = 2;
     for (i, &[tex, x, y]) in r.rows.texel.iter().enumerate() {
         let t = &mut scene.textures[tex as usize];

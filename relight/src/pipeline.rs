@@ -148,7 +148,7 @@ pub struct Options {
     pub seed: u64,
     /// Bounced light of the model's own emitters ([`model::bounce`]).
     pub bounce: Optional,
-    /// Rays per row for the bounce operator.
+    /// Rays per row for the bounce operator (0: [`model::bounce::rays_for`] the rows).
     pub bounce_rays: usize,
     /// A sun (directional light).
     pub sun: Optional,
@@ -184,7 +184,7 @@ impl Default for Options {
             backend: BackendChoice::Auto,
             seed: 1,
             bounce: Optional::Auto,
-            bounce_rays: 16,
+            bounce_rays: 0,
             sun: Optional::Auto,
             sky: Optional::Auto,
             surfaces: Optional::Auto,
@@ -348,6 +348,9 @@ pub struct Report {
     /// Scale of each pass of bounced light, and the passes.
     pub bounce: Option<[f32; 3]>,
     pub bounces: usize,
+    /// How the bounce's transport was traced: rows, rays per row, rays that landed on one
+    /// of q3map2's bounce lights, and those pieces ([`model::bounce::pieces`]).
+    pub bounce_transport: Option<model::bounce::GatherStats>,
     pub dirt: bool,
     pub filter: bool,
     /// The decision on every optional term.
@@ -507,6 +510,8 @@ struct TermPlan {
     filter: Optional,
     /// q3map2's `-fast` for area lights.
     fast_area: bool,
+    /// q3map2's `-fast` (or `-fastbounce`) for its bounce lights ([`model::bounce::pieces`]).
+    fast_bounce: bool,
 }
 
 /// The compile's settings where recorded (`_q3map2_cmdline`), the options otherwise.
@@ -540,6 +545,7 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
         dirt: from_record(opts.dirt, c.has("-dirty")),
         filter: from_record(opts.filter, c.has("-filter")),
         fast_area: c.has("-fast"),
+        fast_bounce: ["-fast", "-faster", "-fastbounce"].iter().any(|s| c.has(s)),
     };
     let mut note = match &c.cmdline {
         Some(l) => format!("recorded compile: {l}"),
@@ -579,12 +585,19 @@ fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::
     });
     let filter = (plan.filter != Optional::Off && luxels).then(|| model::compile::filter(rows, &nb));
     st.done("bases: dirt, filter");
-    let bounce = (plan.bounce != Optional::Off).then(|| model::bounce::operator(scene, rows, bvh, bounce_rays).0);
+    let bounce_rays = if bounce_rays == 0 { model::bounce::rays_for(rows.len()) } else { bounce_rays };
+    let (bounce, bounce_stats) = match plan.bounce {
+        Optional::Off => (None, None),
+        _ => {
+            let (t, s) = model::bounce::operator(scene, rows, bvh, bounce_rays, plan.fast_bounce);
+            (Some(t), Some(s))
+        }
+    };
     st.done("bases: bounce");
-    let gathered = (with_gathered && plan.bounce != Optional::Off).then(|| crate::gather::gather(scene, bvh, rows, bounce_rays).0);
-    st.done("bases: gathered");
     let bounce_reflectance = if bounce.is_some() { model::bounce::reflectance(rows) } else { Vec::new() };
-    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounces: plan.bounces, gathered, sky_triangles }
+    let gathered = bounce.as_ref().filter(|_| with_gathered).map(|t| crate::gather::through(rows, t, &bounce_reflectance));
+    st.done("bases: gathered");
+    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounce_stats, bounces: plan.bounces, gathered, sky_triangles }
 }
 
 /// The map's own emitters as the file declares them: the sun (from its directional
@@ -620,7 +633,8 @@ pub struct Rendered {
 }
 
 /// Renders `model` (its lights, sun, sky, surfaces, ambient, minlight, dirt, filter and
-/// `bounces` passes of bounced light traced with `bounce_rays` rays per row) on the luxel
+/// `bounces` passes of bounced light traced with `bounce_rays` rays per row, 0: as
+/// relight chooses) on the luxel
 /// rows of `scene`, on the CPU.
 pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) -> Result<Rendered> {
     render_on(scene, model, bounces, bounce_rays, BackendChoice::Cpu)
@@ -640,6 +654,7 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
         dirt: if model.dirt { Optional::On } else { Optional::Off },
         filter: if model.filter { Optional::On } else { Optional::Off },
         fast_area: false,
+        fast_bounce: false,
     };
     let mut st = Stages { t: Instant::now(), list: Vec::new() };
     let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, &mut st);
@@ -728,7 +743,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let (mut terms, mut compile_note) = plan_terms(opts, &scene);
     if tracing.is_some() {
         // The thesis's model: point lights and their traced bounces, nothing else.
-        terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, filter: Optional::Off, fast_area: false };
+        terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
         compile_note = "--estimator tracing: point lights and their traced bounces only (the thesis's model)".into();
     }
     let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
@@ -1092,6 +1107,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         minlight: m.minlight,
         bounce: m.bounce,
         bounces: bases.bounces,
+        bounce_transport: bases.bounce_stats.clone(),
         dirt: m.dirt,
         filter: m.filter,
         terms: term_reports,
@@ -1618,7 +1634,7 @@ mod tests {
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         fit.locked = vec![false; 2];
         fit.model = Model { bounce: Some([4e-6; 3]), ..truth.clone() };
-        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false };
+        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
         let mut reports = Vec::new();
         decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
         let b = &reports[0];

@@ -143,11 +143,29 @@ pub fn chain_bases(n: usize, bounces: usize) -> crate::model::Bases {
     crate::model::Bases {
         dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
         filter: Some(ring(0.2, 3)),
-        bounce: Some(ring(0.3, 7)),
+        bounce: Some(factored_transport(n, n / 3 + 1)),
         bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
         bounces,
         ..crate::model::Bases::default()
     }
+}
+
+/// A bounce transport through `s` sources, as q3map2's pieces make it
+/// ([`crate::model::bounce::Transport`]): row `i`'s rays land on sources `i mod s` (0.2)
+/// and `(i + 5) mod s` (0.1); source `p` averages rows `p, p + s, p + 2s, ...`.
+pub fn factored_transport(n: usize, s: usize) -> crate::model::bounce::Transport {
+    let s = s.max(1);
+    let mut gather = crate::model::Sparse::empty();
+    for i in 0..n {
+        gather.push_row([((i % s) as u32, 0.2), (((i + 5) % s) as u32, 0.1)]);
+    }
+    let mut emit = crate::model::Sparse::empty();
+    for p in 0..s {
+        let members: Vec<u32> = (p..n).step_by(s).map(|i| i as u32).collect();
+        let w = 1.0 / members.len().max(1) as f32;
+        emit.push_row(members.into_iter().map(|i| (i, w)));
+    }
+    crate::model::bounce::Transport { gather, emit: Some(emit) }
 }
 
 /// Makes `rows`' data the radiance of `truth` (its visibility traced on the CPU): each value

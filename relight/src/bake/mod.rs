@@ -56,7 +56,8 @@ pub struct Options {
     pub out_dir: PathBuf,
     /// Passes of bounced light; `None`: as the file records (`q3_relight.bounces`, 0 if absent).
     pub bounces: Option<usize>,
-    /// Rays per row of the bounce operator.
+    /// Rays per row of the bounce operator (0: as relight chooses,
+    /// [`crate::model::bounce::rays_for`]).
     pub bounce_rays: usize,
     /// EXR samples as 16-bit floats (else 32-bit).
     pub half: bool,

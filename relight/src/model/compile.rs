@@ -108,10 +108,16 @@ impl Sparse {
     /// `y = S^T x` (the same optional column factor applied on the output side), with
     /// `x.len()` rows (the operators here are square).
     pub fn apply_transposed(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        self.apply_transposed_len(x, col, x.len())
+    }
+
+    /// [`Sparse::apply_transposed`] of a rectangular operator: `x` over its rows, `y`
+    /// over `len` columns (those past the largest column with an entry are zero).
+    pub fn apply_transposed_len(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>, len: usize) -> Vec<[f64; 3]> {
         let t = self.transposed.get_or_init(|| Box::new(self.transpose()));
         let (offsets, entries) = (&t.0, &t.1);
-        let n = x.len().min(offsets.len().saturating_sub(1));
-        let mut y = vec![[0.0f64; 3]; x.len()];
+        let n = len.min(offsets.len().saturating_sub(1));
+        let mut y = vec![[0.0f64; 3]; len];
         // Row j of S^T gathers x over the rows i that point at j; the column factor is
         // that of the output row j.
         y[..n].par_iter_mut().enumerate().for_each(|(j, yj)| {

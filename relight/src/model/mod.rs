@@ -98,10 +98,12 @@ pub struct Bases {
     /// Dirt factor per row.
     pub dirt: Option<Vec<f32>>,
     pub filter: Option<Sparse>,
-    /// The transport operator `K`.
-    pub bounce: Option<Sparse>,
+    /// The bounce's transport `K` ([`bounce::Transport`]).
+    pub bounce: Option<bounce::Transport>,
     /// The reflectance each row bounces light with ([`bounce::reflectance`]).
     pub bounce_reflectance: Vec<[f32; 3]>,
+    /// How the bounce's transport was traced (rays, pieces).
+    pub bounce_stats: Option<bounce::GatherStats>,
     /// Passes of bounced light (q3map2's `-bounce N`).
     pub bounces: usize,
     /// The data's own bounced radiance per row ([`crate::gather`]).
@@ -131,6 +133,7 @@ impl Bases {
             filter: None,
             bounce: None,
             bounce_reflectance: Vec::new(),
+            bounce_stats: None,
             bounces: 0,
             gathered: self.gathered.as_ref().map(|o| take.iter().map(|&i| o[i]).collect()),
             sky_triangles: self.sky_triangles.clone(),
@@ -229,7 +232,7 @@ fn dirt_filter_adjoint(model: &Model, bases: &Bases, mut v: Vec<[f64; 3]>) -> Ve
 }
 
 /// The bounce operator of one pass without dirt and filter: `k K rho v`.
-fn bounce_step(k: [f32; 3], op: &Sparse, rho: &[[f32; 3]], v: &[[f64; 3]]) -> Vec<[f64; 3]> {
+fn bounce_step(k: [f32; 3], op: &bounce::Transport, rho: &[[f32; 3]], v: &[[f64; 3]]) -> Vec<[f64; 3]> {
     let mut out = op.apply(v, Some(rho));
     out.par_iter_mut().for_each(|x| (0..3).for_each(|c| x[c] *= k[c] as f64));
     out
@@ -297,6 +300,16 @@ impl Spread {
     /// `S v` ([`Sparse::apply`]'s values), over the rows the support reaches while they
     /// are few.
     fn apply(&self, op: &Sparse, col: Option<&[[f32; 3]]>) -> Spread {
+        if let Some(s) = &self.support {
+            if let Some((v, support)) = op.apply_supported(&self.v, col, s, self.v.len() / SPREAD_DENSE_FRACTION) {
+                return Spread { v, support: Some(support) };
+            }
+        }
+        Spread { v: op.apply(&self.v, col), support: None }
+    }
+
+    /// [`Spread::apply`] through the bounce's transport.
+    fn transport(&self, op: &bounce::Transport, col: Option<&[[f32; 3]]>) -> Spread {
         if let Some(s) = &self.support {
             if let Some((v, support)) = op.apply_supported(&self.v, col, s, self.v.len() / SPREAD_DENSE_FRACTION) {
                 return Spread { v, support: Some(support) };
@@ -385,7 +398,7 @@ pub fn light_column(chain: &Model, rows: &Rows, bases: &Bases, direct: &[(u32, f
     let mut total = pass.clone();
     if let (Some(k), Some(op)) = (chain.bounce, &bases.bounce) {
         for _ in 0..bases.bounces {
-            let mut next = pass.apply(op, Some(&bases.bounce_reflectance));
+            let mut next = pass.transport(op, Some(&bases.bounce_reflectance));
             next.each(|_, x| (0..3).for_each(|c| x[c] *= k[c] as f64));
             pass = dirt_filter(next);
             total.add(&pass);
@@ -585,8 +598,9 @@ mod tests {
             surfaces,
             dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
             filter: Some(ring(0.2)),
-            bounce: Some(ring(0.3)),
+            bounce: Some(crate::testutil::factored_transport(n, n / 4 + 1)),
             bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
+            bounce_stats: None,
             bounces: 3,
             gathered: Some((0..n).map(|i| [0.01 * (i % 4) as f32, 0.02, 0.015]).collect()),
             sky_triangles: vec![true; mesh.triangles.len()],
