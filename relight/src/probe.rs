@@ -111,7 +111,7 @@ pub fn probe(input: &std::path::Path, point: DVec3, normal: DVec3) -> Result<Pro
         // Quake winding (the form factor's convention): each glTF triangle reversed. A
         // double-sided material emits from its back as well (as relight's surface lights).
         let w = [tri[2], tri[1], tri[0]].map(|v| scene.mesh.positions[v as usize]);
-        let f = crate::model::surface::form_factor(x, n, &w);
+        let f = crate::model::area::form_factor(x, n, &w);
         let f = if mat.double_sided { f.abs() } else { f.max(0.0) } as f64;
         for c in 0..3 {
             em[c] += std::f64::consts::PI * l[c] as f64 * f;

@@ -29,6 +29,7 @@
 //! each term turns `rho_D` into its parameters' gradient. Everything but the lights runs
 //! here in f64; the lights run on a [`crate::backend::Backend`] (the CPU or wgpu).
 
+pub mod area;
 pub mod bounce;
 pub mod compile;
 pub mod lights;

@@ -84,86 +84,6 @@ pub struct Patch {
     pub two_sided: bool,
 }
 
-/// q3map2's point-to-polygon form factor (`PointToPolygonFormFactor`): the signed
-/// fraction of the cosine-weighted hemisphere of `normal` at `point` that the polygon
-/// covers, positive when its winding faces the point.
-pub fn form_factor(point: Vec3, normal: Vec3, verts: &[Vec3]) -> f32 {
-    let n = verts.len();
-    // The directions to the corners, on the stack for the windings q3map2's cuts make
-    // (called for every row and patch: no allocation there).
-    let mut on_stack = [Vec3::ZERO; 16];
-    let mut on_heap = Vec::new();
-    let dirs: &mut [Vec3] = if n <= on_stack.len() {
-        &mut on_stack[..n]
-    } else {
-        on_heap.resize(n, Vec3::ZERO);
-        &mut on_heap
-    };
-    for (d, v) in dirs.iter_mut().zip(verts) {
-        *d = (*v - point).normalize_or_zero();
-    }
-    let mut total = 0.0f64;
-    for i in 0..n {
-        let (a, b) = (dirs[i], dirs[(i + 1) % n]);
-        let tri = a.cross(b);
-        let len = tri.length();
-        if len < 1e-4 {
-            continue;
-        }
-        let angle = (a.dot(b).clamp(-1.0, 1.0) as f64).acos();
-        total += normal.dot(tri / len) as f64 * angle;
-    }
-    (total / std::f64::consts::TAU) as f32
-}
-
-/// Splits `w` by the plane `x[axis] = at`: (front `>= at`, back `<= at`).
-fn clip(w: &[Vec3], axis: usize, at: f32) -> (Vec<Vec3>, Vec<Vec3>) {
-    let (mut front, mut back) = (Vec::new(), Vec::new());
-    for k in 0..w.len() {
-        let (p, q) = (w[k], w[(k + 1) % w.len()]);
-        let (dp, dq) = (p[axis] - at, q[axis] - at);
-        if dp >= 0.0 {
-            front.push(p);
-        }
-        if dp <= 0.0 {
-            back.push(p);
-        }
-        if (dp > 0.0 && dq < 0.0) || (dp < 0.0 && dq > 0.0) {
-            let m = p + (q - p) * (dp / (dp - dq));
-            front.push(m);
-            back.push(m);
-        }
-    }
-    (front, back)
-}
-
-/// q3map2's `RadSubdivideDiffuseLight` cut: halves `w` by axial planes until no extent
-/// exceeds `limit` (m); appends the pieces.
-fn subdivide(w: Vec<Vec3>, limit: f32, out: &mut Vec<Vec<Vec3>>, depth: u32) {
-    if w.len() < 3 {
-        return;
-    }
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for p in &w {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
-    }
-    for axis in 0..3 {
-        // q3map2 compares in Quake units; in meters an extent equal to the limit can round
-        // above it.
-        if hi[axis] - lo[axis] > limit * (1.0 + 1e-4) && depth < 24 {
-            let (f, b) = clip(&w, axis, 0.5 * (lo[axis] + hi[axis]));
-            subdivide(f, limit, out, depth + 1);
-            subdivide(b, limit, out, depth + 1);
-            return;
-        }
-    }
-    out.push(w);
-}
-
-fn polygon_area(w: &[Vec3]) -> f32 {
-    (2..w.len()).map(|i| 0.5 * (w[i - 1] - w[0]).cross(w[i] - w[0]).length()).sum()
-}
 
 /// The emitting groups of a scene and their patches.
 pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
@@ -232,9 +152,9 @@ fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal
     let u = scene.units_m;
     let em = scene.materials[m].emitter.as_ref().expect("grouped materials emit");
     let mut pieces = Vec::new();
-    subdivide(w, em.subdivide * u, &mut pieces, 0);
+    super::area::cut(&w, em.subdivide * u, super::area::CLIP_EPSILON_UNITS * u, &mut pieces);
     for piece in pieces {
-        let area = polygon_area(&piece);
+        let area = super::area::polygon_area(&piece);
         // q3map2 drops pieces under one square unit.
         if !(area >= u * u) {
             continue;
@@ -311,7 +231,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 let pushed = if d > -push && d < push { x + p.normal * (push - d) } else { x };
-                let mut ff = form_factor(pushed, n, &p.verts);
+                let mut ff = super::area::form_factor(pushed, n, &p.verts);
                 // Seen from behind a two-sided patch, or by a two-sided row from behind
                 // its own plane: the opposite form factor, and the shadow ray goes to a
                 // point 1 unit behind the patch (q3map2 either way).
@@ -396,51 +316,6 @@ impl SurfaceBasis {
 mod tests {
     use super::*;
 
-    /// The form factor of a large square right above a point is the cosine-weighted
-    /// fraction of the hemisphere it covers: for a square of half-width `a` at height `h`,
-    /// compare with the analytic value of the four corner rectangles.
-    #[test]
-    fn form_factor_matches_the_analytic_square() {
-        // Analytic point-to-rectangle form factor (receiver parallel, at a corner).
-        fn corner(a: f64, b: f64, h: f64) -> f64 {
-            let (x, y) = (a / h, b / h);
-            let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
-            (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI)
-        }
-        let (a, h) = (1.5f32, 1.0f32);
-        // Seen from below (y up), facing the point: winding clockwise seen from above.
-        let sq = [Vec3::new(-a, h, -a), Vec3::new(-a, h, a), Vec3::new(a, h, a), Vec3::new(a, h, -a)];
-        let ff = form_factor(Vec3::ZERO, Vec3::Y, &sq);
-        let want = 4.0 * corner(a as f64, a as f64, h as f64);
-        assert!((ff as f64 - want).abs() < 1e-4, "{ff} vs {want}");
-        let rev: Vec<Vec3> = sq.iter().rev().copied().collect();
-        assert!((form_factor(Vec3::ZERO, Vec3::Y, &rev) + ff).abs() < 1e-6, "the other winding is negative");
-        // A huge square covers nearly the whole hemisphere.
-        let big: Vec<Vec3> = sq.iter().map(|p| Vec3::new(p.x * 1e4, p.y, p.z * 1e4)).collect();
-        assert!((form_factor(Vec3::ZERO, Vec3::Y, &big) - 1.0).abs() < 1e-3);
-    }
-
-    /// A regular polygon right above a point lies between its inscribed and its
-    /// circumscribed disc (form factor `r^2 / (r^2 + h^2)` each), with few corners (on
-    /// the stack) or many (past the stack's 16, on the heap).
-    #[test]
-    fn form_factor_of_regular_polygons_lies_between_their_discs() {
-        let (r, h) = (1.2f64, 0.8f64);
-        let disc = |r: f64| r * r / (r * r + h * h);
-        for n in [5usize, 16, 17, 24, 40] {
-            // Seen from below, facing the point: the angle decreasing round the winding.
-            let verts: Vec<Vec3> = (0..n)
-                .map(|k| {
-                    let t = -std::f64::consts::TAU * k as f64 / n as f64;
-                    Vec3::new((r * t.cos()) as f32, h as f32, (r * t.sin()) as f32)
-                })
-                .collect();
-            let ff = form_factor(Vec3::ZERO, Vec3::Y, &verts) as f64;
-            let inner = disc(r * (std::f64::consts::PI / n as f64).cos());
-            assert!(inner - 1e-5 < ff && ff < disc(r) + 1e-5, "{n} corners: {ff} not within [{inner}, {}]", disc(r));
-        }
-    }
-
     /// A two-sided emitter (`cull none`) standing in the middle of a room lights the wall
     /// behind it as the wall in front (the room is symmetric about it); a one-sided one
     /// lights the wall behind it not at all.
@@ -489,21 +364,4 @@ mod tests {
         }
     }
 
-    #[test]
-    fn subdivision_cuts_to_the_limit_and_keeps_the_area() {
-        let w = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, 3.0), Vec3::new(5.0, 0.0, 0.0)];
-        let mut out = Vec::new();
-        subdivide(w.clone(), 1.0, &mut out, 0);
-        assert!(out.len() > 10);
-        for p in &out {
-            let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-            for v in p {
-                lo = lo.min(*v);
-                hi = hi.max(*v);
-            }
-            assert!((hi - lo).max_element() <= 1.0 + 1e-5);
-        }
-        let total: f32 = out.iter().map(|p| polygon_area(p)).sum();
-        assert!((total - polygon_area(&w)).abs() < 1e-4, "{total}");
-    }
 }

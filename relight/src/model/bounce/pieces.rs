@@ -33,6 +33,7 @@ use std::collections::HashMap;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use crate::model::area::{self, bounds, clip, split, Corner};
 use crate::model::compile::Sparse;
 use crate::rows::Rows;
 use crate::scene::{Lighting, Scene};
@@ -40,8 +41,6 @@ use crate::scene::{Lighting, Scene};
 /// Pieces are cut until no extent along Quake's axes passes this (`diffuseSubdivide`;
 /// a shader's `q3map_lightSubdivide` is not read).
 pub const SUBDIVIDE_UNITS: f32 = 256.0;
-/// A corner this close to a cut's plane goes to both halves (`RADIOSITY_CLIP_EPSILON`).
-pub const CLIP_EPSILON_UNITS: f32 = 0.125;
 /// A piece with less area emits nothing, units^2.
 pub const MIN_AREA_UNITS2: f32 = 1.0;
 /// The barycentric sample weights of a fan triangle run over `1..GRANULARITY`.
@@ -52,19 +51,9 @@ pub const MAX_SAMPLES: usize = 150;
 /// `RADIOSITY_VALUE 500 x 0.375 x formFactorValueScale 3 x -bouncescale 0.25`), which
 /// `-fast` compares with its falloff tolerance (the piece's colour is not counted).
 pub const ADD_PER_FORM_FACTOR: f32 = 500.0 * 0.375 * 3.0 * 0.25;
-/// glTF's axes in the order q3map2 tries Quake's x, y, z (`(x, y, z)q3 -> (x, z, -y)gltf`;
-/// the middle of a span is the same whichever way an axis points).
-const AXES: [usize; 3] = [0, 2, 1];
 /// Cuts deeper than this (a triangle of non-finite or absurd size) stop.
-const MAX_DEPTH: usize = 48;
+const MAX_DEPTH: usize = area::MAX_DEPTH;
 const NONE: u32 = u32::MAX;
-
-/// A corner of a piece: where it is and its barycentric coordinates in its triangle.
-#[derive(Debug, Clone, Copy)]
-struct Corner {
-    p: Vec3,
-    bary: [f32; 3],
-}
 
 #[derive(Debug, Clone, Copy)]
 enum Node {
@@ -108,7 +97,7 @@ impl Pieces {
         let u = scene.units_m.max(f32::MIN_POSITIVE);
         let luxel: HashMap<[u32; 3], u32> = (0..rows.len()).filter(|&i| rows.texel[i][0] != u32::MAX).map(|i| (rows.texel[i], i as u32)).collect();
         let vertex_row: HashMap<u32, u32> = (0..rows.len()).filter(|&i| rows.vertex[i] != u32::MAX).map(|i| (rows.vertex[i], i as u32)).collect();
-        let ctx = Ctx { scene, rows, luxel: &luxel, vertex_row: &vertex_row, subdivide: SUBDIVIDE_UNITS * u, epsilon: CLIP_EPSILON_UNITS * u, min_area: MIN_AREA_UNITS2 * u * u, units_m: u, fast };
+        let ctx = Ctx { scene, rows, luxel: &luxel, vertex_row: &vertex_row, subdivide: SUBDIVIDE_UNITS * u, epsilon: area::CLIP_EPSILON_UNITS * u, min_area: MIN_AREA_UNITS2 * u * u, units_m: u, fast };
         let locals: Vec<Option<Local>> = (0..mesh.triangles.len()).into_par_iter().map(|t| ctx.triangle(t)).collect();
         let mut out = Pieces { root: Vec::with_capacity(locals.len()), nodes: Vec::new(), emit: Sparse::empty(), origin: Vec::new(), envelope: Vec::new() };
         let mut pieces = 0u32;
@@ -199,19 +188,14 @@ impl Ctx<'_> {
         if w.len() < 3 {
             return at;
         }
-        let (lo, hi) = w.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), c| (lo.min(c.p), hi.max(c.p)));
-        if depth < MAX_DEPTH {
-            for axis in AXES {
-                if hi[axis] - lo[axis] > self.subdivide {
-                    let dist = 0.5 * (hi[axis] + lo[axis]);
-                    let (front, back) = clip(w, axis, dist, self.epsilon);
-                    let front = self.subdivide(t, &front, depth + 1, local);
-                    let back = self.subdivide(t, &back, depth + 1, local);
-                    local.nodes[at as usize] = Node::Cut { axis: axis as u8, dist, front, back };
-                    return at;
-                }
-            }
+        if let Some((axis, dist)) = split(w, self.subdivide).filter(|_| depth < MAX_DEPTH) {
+            let (front, back) = clip(w, axis, dist, self.epsilon);
+            let front = self.subdivide(t, &front, depth + 1, local);
+            let back = self.subdivide(t, &back, depth + 1, local);
+            local.nodes[at as usize] = Node::Cut { axis: axis as u8, dist, front, back };
+            return at;
         }
+        let (lo, hi) = bounds(w);
         let area: f32 = (2..w.len()).map(|i| 0.5 * (w[i - 1].p - w[0].p).cross(w[i].p - w[0].p).length()).sum();
         if !(area >= self.min_area) || !lo.is_finite() || !hi.is_finite() {
             return at;
@@ -318,7 +302,7 @@ fn envelope(w: &[Corner], origin: Vec3, normal: Vec3, units_m: f32) -> f32 {
     let mut radius = FIRST_UNITS;
     while radius < LAST_UNITS {
         let at = origin + normal * (radius * units_m);
-        let ff = crate::model::surface::form_factor(at, -normal, &verts).abs();
+        let ff = area::form_factor(at, -normal, &verts).abs();
         if ff * ADD_PER_FORM_FACTOR <= crate::scene::q3map2::FALLOFF_TOLERANCE_BYTES {
             return radius * units_m;
         }
@@ -327,73 +311,9 @@ fn envelope(w: &[Corner], origin: Vec3, normal: Vec3, units_m: f32) -> f32 {
     LAST_UNITS * units_m
 }
 
-/// `RadClipWindingEpsilon`: `w` cut by the plane `p[axis] = dist` into its front
-/// (`p[axis] > dist`) and back; corners within `epsilon` go to both, and a winding wholly
-/// on one side (on-plane corners aside) goes to that side alone.
-fn clip(w: &[Corner], axis: usize, dist: f32, epsilon: f32) -> (Vec<Corner>, Vec<Corner>) {
-    let d: Vec<f32> = w.iter().map(|c| c.p[axis] - dist).collect();
-    let side = |x: f32| if x > epsilon { 0 } else if x < -epsilon { 1 } else { 2 };
-    let (fronts, backs) = d.iter().fold((0, 0), |(f, b), &x| match side(x) {
-        0 => (f + 1, b),
-        1 => (f, b + 1),
-        _ => (f, b),
-    });
-    if fronts == 0 {
-        return (Vec::new(), w.to_vec());
-    }
-    if backs == 0 {
-        return (w.to_vec(), Vec::new());
-    }
-    let (mut front, mut back) = (Vec::with_capacity(w.len() + 2), Vec::with_capacity(w.len() + 2));
-    for i in 0..w.len() {
-        let (a, sa) = (w[i], side(d[i]));
-        let next = (i + 1) % w.len();
-        let sb = side(d[next]);
-        match sa {
-            2 => {
-                front.push(a);
-                back.push(a);
-                continue;
-            }
-            0 => front.push(a),
-            _ => back.push(a),
-        }
-        if sb == 2 || sb == sa {
-            continue;
-        }
-        let b = w[next];
-        let den = d[i] - d[next];
-        let f = if den != 0.0 { d[i] / den } else { 0.5 };
-        let mid = Corner { p: a.p + (b.p - a.p) * f, bary: [0, 1, 2].map(|k| a.bary[k] + (b.bary[k] - a.bary[k]) * f) };
-        front.push(mid);
-        back.push(mid);
-    }
-    (front, back)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn corner(x: f32, y: f32, z: f32, bary: [f32; 3]) -> Corner {
-        Corner { p: Vec3::new(x, y, z), bary }
-    }
-
-    #[test]
-    fn a_cut_splits_a_triangle_and_interpolates_its_corners() {
-        let w = [corner(0.0, 0.0, 0.0, [1.0, 0.0, 0.0]), corner(4.0, 0.0, 0.0, [0.0, 1.0, 0.0]), corner(0.0, 0.0, 4.0, [0.0, 0.0, 1.0])];
-        let (front, back) = clip(&w, 0, 2.0, 0.01);
-        assert_eq!((front.len(), back.len()), (3, 4));
-        // The new corners lie on the plane, with the barycentrics of where they are.
-        for c in front.iter().chain(&back) {
-            let p = w[0].p * c.bary[0] + w[1].p * c.bary[1] + w[2].p * c.bary[2];
-            assert!((p - c.p).length() < 1e-5, "{c:?}");
-        }
-        assert!(front.iter().all(|c| c.p.x >= 2.0 - 1e-5) && back.iter().all(|c| c.p.x <= 2.0 + 1e-5));
-        // Areas add up.
-        let area = |w: &[Corner]| -> f32 { (2..w.len()).map(|i| 0.5 * (w[i - 1].p - w[0].p).cross(w[i].p - w[0].p).length()).sum() };
-        assert!((area(&front) + area(&back) - 8.0).abs() < 1e-4);
-    }
 
     /// A lightmapped wall 600 x 300 units (luxels of 15 units) and a small vertex-lit
     /// triangle: the wall's two triangles are cut into pieces no wider than 256 units,
@@ -468,13 +388,5 @@ mod tests {
         assert!(fast.envelope.iter().any(|&e| e / u > 500.0), "a 150-unit piece reaches further");
     }
 
-    #[test]
-    fn a_winding_on_one_side_of_a_cut_stays_whole() {
-        let w = [corner(2.0, 0.0, 0.0, [1.0, 0.0, 0.0]), corner(4.0, 0.0, 0.0, [0.0, 1.0, 0.0]), corner(2.0, 0.0, 4.0, [0.0, 0.0, 1.0])];
-        // Two corners on the plane (within epsilon), one in front: all front.
-        let (front, back) = clip(&w, 0, 2.05, 0.125);
-        assert_eq!((front.len(), back.len()), (3, 0));
-        let (front, back) = clip(&w, 0, 5.0, 0.125);
-        assert_eq!((front.len(), back.len()), (0, 3));
-    }
+
 }
