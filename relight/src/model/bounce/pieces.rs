@@ -5,7 +5,7 @@
 //! Between passes q3map2 turns every drawn triangle of a lit, opaque, non-sky surface
 //! into area lights. A triangle is cut in two at the middle of its bounds, along the first
 //! of Quake's x, y, z on which it spans more than [`SUBDIVIDE_UNITS`], and each half again,
-//! until no extent passes it (a vertex within [`CLIP_EPSILON_UNITS`] of a cut goes to both
+//! until no extent passes it (a vertex within [`area::CLIP_EPSILON_UNITS`] of a cut goes to both
 //! halves). A piece under [`MIN_AREA_UNITS2`] emits nothing. Every other piece emits one
 //! colour over its whole area: the average of the pass's reflected light at its sample
 //! points,
@@ -153,7 +153,7 @@ struct Ctx<'a> {
     rows: &'a Rows,
     luxel: &'a HashMap<[u32; 3], u32>,
     vertex_row: &'a HashMap<u32, u32>,
-    /// [`SUBDIVIDE_UNITS`], [`CLIP_EPSILON_UNITS`] and [`MIN_AREA_UNITS2`] in meters.
+    /// [`SUBDIVIDE_UNITS`], [`area::CLIP_EPSILON_UNITS`] and [`MIN_AREA_UNITS2`] in meters.
     subdivide: f32,
     epsilon: f32,
     min_area: f32,
