@@ -74,20 +74,6 @@ pub fn cosine_direction(n: Vec3, i: u32, cell: usize, s: usize) -> Vec3 {
     (t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize_or_zero()
 }
 
-/// Barycentric coordinates of `p` (on or near the triangle's plane), clamped into it.
-pub fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
-    let (v0, v1, v2) = (b - a, c - a, p - a);
-    let (d00, d01, d11) = (v0.dot(v0), v0.dot(v1), v1.dot(v1));
-    let (d20, d21) = (v2.dot(v0), v2.dot(v1));
-    let den = d00 * d11 - d01 * d01;
-    if !(den.abs() > 0.0) {
-        return [1.0 / 3.0; 3];
-    }
-    let v = ((d11 * d20 - d01 * d21) / den).clamp(0.0, 1.0);
-    let w = ((d00 * d21 - d01 * d20) / den).clamp(0.0, 1.0 - v);
-    [1.0 - v - w, v, w]
-}
-
 /// q3map2's bounce strength per unit of raw texture colour (see the module docs):
 /// `500 x 0.375 x 3 x 0.25 / 255`.
 pub const Q3MAP2_BOUNCE: f32 = 500.0 * 0.375 * 3.0 * 0.25 / 255.0;
@@ -199,7 +185,7 @@ impl Transport {
 /// envelope.
 pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast: bool) -> (Transport, GatherStats) {
     let pieces = pieces::Pieces::build(scene, rows, fast);
-    let (gather, mut st) = trace(scene, rows, bvh, rays_per_row, |i, tri, p, _bc, add| {
+    let (gather, mut st) = trace(scene, rows, bvh, rays_per_row, |i, tri, p, add| {
         match pieces.locate(tri, p) {
             Some(w) if (rows.pos[i] - pieces.origin[w as usize]).length() < pieces.envelope[w as usize] => {
                 add(w, 1.0);
@@ -215,11 +201,11 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast
 /// The rays of the bounce's transport: `rays_per_row` cosine-weighted rays (rounded up
 /// to a square) from each row, per hemisphere of a two-sided row; a ray from row `i`
 /// that meets the front of a surface (either face of a two-sided one) at point `p` of
-/// triangle `tri` (barycentrics `bc`) is handed to `land`, which adds its sources with their weights
+/// triangle `tri` is handed to `land`, which adds its sources with their weights
 /// (each scaled by `1 / rays`) and says whether it found any.
 fn trace<L>(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, land: L) -> (Sparse, GatherStats)
 where
-    L: Fn(usize, usize, Vec3, [f32; 3], &mut dyn FnMut(u32, f32)) -> bool + Sync,
+    L: Fn(usize, usize, Vec3, &mut dyn FnMut(u32, f32)) -> bool + Sync,
 {
     let s = (rays_per_row.max(1) as f64).sqrt().ceil() as usize;
     let m = s * s;
@@ -249,7 +235,6 @@ where
                               // two-sided shader emit from both faces)
                 }
                 let p = o + d * dist;
-                let bc = barycentric(p, a, b, c);
                 let mut add = |j: u32, w: f32| {
                     let w = w / m as f32;
                     match acc.iter_mut().find(|e| e.0 == j) {
@@ -257,7 +242,7 @@ where
                         None => acc.push((j, w)),
                     }
                 };
-                landed += land(i, tri, p, bc, &mut add) as u64;
+                landed += land(i, tri, p, &mut add) as u64;
             }
             (acc, landed)
         })
