@@ -17,8 +17,12 @@ pub const CLIP_EPSILON_UNITS: f32 = 0.125;
 /// glTF's axes in the order q3map2 tries Quake's x, y, z (`(x, y, z)q3 -> (x, z, -y)gltf`;
 /// the middle of a span is the same whichever way an axis points).
 pub const AXES: [usize; 3] = [0, 2, 1];
-/// Cuts deeper than this (a winding of non-finite or absurd size) stop.
-pub const MAX_DEPTH: usize = 48;
+/// Cuts deeper than this stop, so a winding makes at most 2^16 pieces: a 256-unit
+/// bounce light's cut reaches it on a flat triangle 65536 units across (Quake's whole
+/// world), a surface light's with a 16-unit `q3map_lightSubdivide` at 4096 units. A
+/// winding of absurd size (a hostile file) ends in fewer, bigger pieces instead of
+/// taking all memory.
+pub const MAX_DEPTH: usize = 16;
 
 /// A corner of a piece: where it is and its barycentric coordinates in its triangle.
 #[derive(Debug, Clone, Copy)]
@@ -230,6 +234,18 @@ mod tests {
         }
         let total: f32 = out.iter().map(|p| polygon_area(p)).sum();
         assert!((total - polygon_area(&w)).abs() < 1e-4, "{total}");
+    }
+
+    /// A triangle far bigger than Quake's world is cut into at most 2^MAX_DEPTH pieces,
+    /// and they still cover it.
+    #[test]
+    fn an_absurd_winding_stops_at_the_depth_cap() {
+        let w = [Vec3::ZERO, Vec3::new(1e7, 0.0, 0.0), Vec3::new(0.0, 0.0, 1e7)];
+        let mut out = Vec::new();
+        cut(&w, 1.0, 0.01, &mut out);
+        assert!(out.len() <= 1 << MAX_DEPTH && out.len() > 1000, "{} pieces", out.len());
+        let total: f64 = out.iter().map(|p| polygon_area(p) as f64).sum();
+        assert!((total / polygon_area(&w) as f64 - 1.0).abs() < 1e-3, "{total}");
     }
 
     /// q3map2 tries Quake's x, y, z in that order: glTF's x, z, y. A triangle across
