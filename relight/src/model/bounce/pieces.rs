@@ -32,6 +32,7 @@ use std::collections::HashMap;
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::model::area::{self, bounds, clip, split, Corner};
 use crate::model::compile::Sparse;
@@ -54,6 +55,10 @@ pub const ADD_PER_FORM_FACTOR: f32 = 500.0 * 0.375 * 3.0 * 0.25;
 /// Cuts deeper than this (a triangle of non-finite or absurd size) stop.
 const MAX_DEPTH: usize = area::MAX_DEPTH;
 const NONE: u32 = u32::MAX;
+/// Cuts in all, every triangle's together. A real map's lit surfaces make a few tens of
+/// thousands (oacmpdm1: 23 370 pieces); past this budget (a hostile file's huge
+/// triangles) the windings left stay whole, so the pieces' memory stays bounded.
+pub const CUT_BUDGET: usize = 1 << 22;
 
 #[derive(Debug, Clone, Copy)]
 enum Node {
@@ -97,7 +102,8 @@ impl Pieces {
         let u = scene.units_m.max(f32::MIN_POSITIVE);
         let luxel: HashMap<[u32; 3], u32> = (0..rows.len()).filter(|&i| rows.texel[i][0] != u32::MAX).map(|i| (rows.texel[i], i as u32)).collect();
         let vertex_row: HashMap<u32, u32> = (0..rows.len()).filter(|&i| rows.vertex[i] != u32::MAX).map(|i| (rows.vertex[i], i as u32)).collect();
-        let ctx = Ctx { scene, rows, luxel: &luxel, vertex_row: &vertex_row, subdivide: SUBDIVIDE_UNITS * u, epsilon: area::CLIP_EPSILON_UNITS * u, min_area: MIN_AREA_UNITS2 * u * u, units_m: u, fast };
+        let cuts_left = AtomicUsize::new(CUT_BUDGET);
+        let ctx = Ctx { scene, rows, luxel: &luxel, vertex_row: &vertex_row, subdivide: SUBDIVIDE_UNITS * u, epsilon: area::CLIP_EPSILON_UNITS * u, min_area: MIN_AREA_UNITS2 * u * u, units_m: u, fast, cuts_left: &cuts_left };
         let locals: Vec<Option<Local>> = (0..mesh.triangles.len()).into_par_iter().map(|t| ctx.triangle(t)).collect();
         let mut out = Pieces { root: Vec::with_capacity(locals.len()), nodes: Vec::new(), emit: Sparse::empty(), origin: Vec::new(), envelope: Vec::new() };
         let mut pieces = 0u32;
@@ -159,6 +165,8 @@ struct Ctx<'a> {
     min_area: f32,
     units_m: f32,
     fast: bool,
+    /// Cuts left in all ([`CUT_BUDGET`]).
+    cuts_left: &'a AtomicUsize,
 }
 
 impl Ctx<'_> {
@@ -188,7 +196,8 @@ impl Ctx<'_> {
         if w.len() < 3 {
             return at;
         }
-        if let Some((axis, dist)) = split(w, self.subdivide).filter(|_| depth < MAX_DEPTH) {
+        let cut = split(w, self.subdivide).filter(|_| depth < MAX_DEPTH && self.cuts_left.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1)).is_ok());
+        if let Some((axis, dist)) = cut {
             let (front, back) = clip(w, axis, dist, self.epsilon);
             let front = self.subdivide(t, &front, depth + 1, local);
             let back = self.subdivide(t, &back, depth + 1, local);
@@ -318,6 +327,25 @@ mod tests {
     /// A lightmapped wall 600 x 300 units (luxels of 15 units) and a small vertex-lit
     /// triangle: the wall's two triangles are cut into pieces no wider than 256 units,
     /// each averaging the luxels under it; the triangle is one piece, its corners' mean.
+    /// Triangles far bigger than Quake's world stop being cut once the budget is spent:
+    /// the tree stays bounded however many there are.
+    #[test]
+    fn hostile_triangles_spend_a_bounded_budget() {
+        let mut mesh = crate::scene::Mesh::default();
+        // 80 triangles, each of which the depth cap alone would let make 2^16 - 1 cuts.
+        for k in 0..40 {
+            let z = k as f32;
+            crate::testutil::push_quad(&mut mesh, [[0.0, 0.0, z], [1e6, 0.0, z], [1e6, 1e6, z], [0.0, 1e6, z]], Vec3::Z);
+        }
+        let scene = crate::testutil::scene(mesh, vec![crate::testutil::material("wall")]);
+        let mut rows = Rows::new(crate::rows::Sampling::plain(1.0));
+        rows.finish();
+        let pieces = Pieces::build(&scene, &rows, false);
+        // Each cut adds two nodes to the one it replaces.
+        assert!(pieces.nodes.len() <= 2 * CUT_BUDGET + scene.mesh.triangles.len(), "{} nodes", pieces.nodes.len());
+        assert!(pieces.nodes.len() > CUT_BUDGET, "the budget was spent: {} nodes", pieces.nodes.len());
+    }
+
     #[test]
     fn pieces_average_the_rows_under_them() {
         use crate::rows::{Row, Sampling, SolidAhead};
