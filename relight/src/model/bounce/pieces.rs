@@ -57,7 +57,8 @@ const MAX_DEPTH: usize = area::MAX_DEPTH;
 const NONE: u32 = u32::MAX;
 /// Cuts in all, every triangle's together. A real map's lit surfaces make a few tens of
 /// thousands (oacmpdm1: 23 370 pieces); past this budget (a hostile file's huge
-/// triangles) the windings left stay whole, so the pieces' memory stays bounded.
+/// triangles) the windings left stay whole, so the pieces' memory stays bounded (which
+/// ones then depends on the threads' order; no real map comes near it).
 pub const CUT_BUDGET: usize = 1 << 22;
 
 #[derive(Debug, Clone, Copy)]
