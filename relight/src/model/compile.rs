@@ -29,6 +29,26 @@ use rayon::prelude::*;
 use crate::rows::{Rows, SolidAhead};
 use crate::trace::bvh::Bvh;
 
+/// A linear operator between rows (or rows and sources) that can skip the rows a sparse
+/// input does not reach: the filter ([`Sparse`]) and the bounce's transport
+/// ([`super::bounce::Transport`]).
+pub trait Operator {
+    /// `y = S x` per channel, with an optional per-column factor.
+    fn apply(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]>;
+    /// `apply` to an `x` that is zero outside `support`: the same bits on the rows it
+    /// reaches, and those rows; `None` past `limit` of them.
+    fn apply_supported(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>, support: &[u32], limit: usize) -> Option<(Vec<[f64; 3]>, Vec<u32>)>;
+}
+
+impl Operator for Sparse {
+    fn apply(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        Sparse::apply(self, x, col)
+    }
+    fn apply_supported(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>, support: &[u32], limit: usize) -> Option<(Vec<[f64; 3]>, Vec<u32>)> {
+        Sparse::apply_supported(self, x, col, support, limit)
+    }
+}
+
 /// A sparse linear operator on the rows: `y_i = sum_k w_ik x_{j_ik}` (CSR).
 ///
 /// The transpose (for the gradient's adjoint passes) is built on first use and kept, so

@@ -298,19 +298,9 @@ struct Spread {
 const SPREAD_DENSE_FRACTION: usize = 4;
 
 impl Spread {
-    /// `S v` ([`Sparse::apply`]'s values), over the rows the support reaches while they
+    /// `S v` ([`Operator::apply`]'s values), over the rows the support reaches while they
     /// are few.
-    fn apply(&self, op: &Sparse, col: Option<&[[f32; 3]]>) -> Spread {
-        if let Some(s) = &self.support {
-            if let Some((v, support)) = op.apply_supported(&self.v, col, s, self.v.len() / SPREAD_DENSE_FRACTION) {
-                return Spread { v, support: Some(support) };
-            }
-        }
-        Spread { v: op.apply(&self.v, col), support: None }
-    }
-
-    /// [`Spread::apply`] through the bounce's transport.
-    fn transport(&self, op: &bounce::Transport, col: Option<&[[f32; 3]]>) -> Spread {
+    fn apply(&self, op: &impl compile::Operator, col: Option<&[[f32; 3]]>) -> Spread {
         if let Some(s) = &self.support {
             if let Some((v, support)) = op.apply_supported(&self.v, col, s, self.v.len() / SPREAD_DENSE_FRACTION) {
                 return Spread { v, support: Some(support) };
@@ -399,7 +389,7 @@ pub fn light_column(chain: &Model, rows: &Rows, bases: &Bases, direct: &[(u32, f
     let mut total = pass.clone();
     if let (Some(k), Some(op)) = (chain.bounce, &bases.bounce) {
         for _ in 0..bases.bounces {
-            let mut next = pass.transport(op, Some(&bases.bounce_reflectance));
+            let mut next = pass.apply(op, Some(&bases.bounce_reflectance));
             next.each(|_, x| (0..3).for_each(|c| x[c] *= k[c] as f64));
             pass = dirt_filter(next);
             total.add(&pass);

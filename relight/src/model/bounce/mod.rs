@@ -179,6 +179,15 @@ impl Transport {
     }
 }
 
+impl super::compile::Operator for Transport {
+    fn apply(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> Vec<[f64; 3]> {
+        Transport::apply(self, x, col)
+    }
+    fn apply_supported(&self, x: &[[f64; 3]], col: Option<&[[f32; 3]]>, support: &[u32], limit: usize) -> Option<(Vec<[f64; 3]>, Vec<u32>)> {
+        Transport::apply_supported(self, x, col, support, limit)
+    }
+}
+
 /// Traces the bounce's transport for `rows` with `rays_per_row` rays (rounded up to a
 /// square) per hemisphere: the rays land on q3map2's bounce lights ([`pieces`]).
 /// `fast`: the compile's `-fast`, under which a piece reaches no row beyond its
