@@ -544,7 +544,8 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
         // (q3map2 warns "Unknown argument" and lights without dirt).
         dirt: from_record(opts.dirt, c.has("-dirty")),
         filter: from_record(opts.filter, c.has("-filter")),
-        fast_area: c.has("-fast"),
+        // q3map2's `-faster` switches `-fast` on too.
+        fast_area: c.has("-fast") || c.has("-faster"),
         fast_bounce: ["-fast", "-faster", "-fastbounce"].iter().any(|s| c.has(s)),
     };
     let mut note = match &c.cmdline {
