@@ -157,8 +157,8 @@ pub fn cut_coplanar_overlaps(prims: &mut [&mut Primitive], eligible: &[&[bool]],
 /// from `budget` (see [`cut_coplanar_overlaps`]).
 fn cut_group(flat: &[[P2; 3]], sign: f64, to_plane: f64, budget: &mut u64, counts: &mut OverlapCounts) -> Vec<(usize, Vec<Vec<P2>>)> {
     let area_total: f64 = flat.iter().map(|t| (signed_area(t) * sign).max(0.0)).sum();
-    let mut grid = Grid::new((area_total / flat.len() as f64).sqrt().max(1e-3) * 2.0);
     let boxes: Vec<(P2, P2)> = flat.iter().map(|t| bounds(t)).collect();
+    let mut grid = Grid::new((area_total / flat.len() as f64).sqrt().max(1e-3) * 2.0, &boxes);
     let mut out = Vec::new();
     for (i, tri) in flat.iter().enumerate() {
         let (lo, hi) = boxes[i];
@@ -243,23 +243,72 @@ fn bounds(t: &[P2; 3]) -> (P2, P2) {
 }
 
 /// A uniform grid over one plane's triangles, for the covering candidates of a box.
+///
+/// Dense over the bounds of the group, at most [`Grid::MAX_GRID_CELLS`] cells; each
+/// cell's triangles are a list threaded through one array (`head` -> `entries`), so
+/// registering a triangle allocates nothing per cell and hashes nothing: a unit of work
+/// costs the same few instructions whatever the input (the budget bounds time, not just
+/// steps).
 struct Grid {
+    /// Lowest corner of the grid, projection metres.
+    origin: P2,
+    /// Side of one cell, projection metres.
     cell: f64,
-    cells: HashMap<(i64, i64), Vec<usize>>,
+    /// Cells along each axis.
+    n: [i64; 2],
+    /// First entry of each cell's list, `NONE` when empty.
+    head: Vec<u32>,
+    /// (triangle, next entry of the same cell).
+    entries: Vec<(u32, u32)>,
     /// Triangles spanning too many cells to register: always candidates.
     big: Vec<usize>,
 }
 
 impl Grid {
+    /// Most cells one triangle is registered in; a larger one goes to `big`.
     const MAX_CELLS: i64 = 1024;
+    /// Most cells of one grid (4 MB of list heads).
+    const MAX_GRID_CELLS: f64 = (1u64 << 20) as f64;
+    const NONE: u32 = u32::MAX;
 
-    fn new(cell: f64) -> Grid {
-        Grid { cell, cells: HashMap::new(), big: Vec::new() }
+    /// A grid over `boxes` whose cells are about `cell` wide, coarser where that would
+    /// take more than `MAX_GRID_CELLS` (or four per triangle) cells.
+    fn new(cell: f64, boxes: &[(P2, P2)]) -> Grid {
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        for (l, h) in boxes {
+            for k in 0..2 {
+                lo[k] = lo[k].min(l[k]);
+                hi[k] = hi[k].max(h[k]);
+            }
+        }
+        if !(lo[0] <= hi[0] && lo[1] <= hi[1]) {
+            lo = [0.0; 2];
+            hi = [0.0; 2];
+        }
+        let most = Self::MAX_GRID_CELLS.min(4.0 * boxes.len() as f64).max(1.0);
+        let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
+        // Cells of `cell` would number (w / cell + 1) (h / cell + 1); widen until `most`.
+        let mut cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
+        let fits = |c: f64| (w / c + 1.0) * (h / c + 1.0) <= most;
+        if !fits(cell) {
+            cell = ((w / most).sqrt() * h.sqrt()).max(w / most).max(h / most).max(cell);
+            while !fits(cell) && cell.is_finite() {
+                cell *= 1.5;
+            }
+        }
+        let count = |x: f64| if cell.is_finite() { ((x / cell).floor() + 1.0).clamp(1.0, most) as i64 } else { 1 };
+        let n = [count(w), count(h)];
+        let cells = (n[0] * n[1]).max(1) as usize;
+        Grid { origin: lo, cell, n, head: vec![Self::NONE; cells], entries: Vec::new(), big: Vec::new() }
     }
 
     fn range(&self, lo: P2, hi: P2) -> ((i64, i64), (i64, i64)) {
-        let c = |x: f64| (x / self.cell).floor().clamp(-1e15, 1e15) as i64;
-        ((c(lo[0]), c(hi[0])), (c(lo[1]), c(hi[1])))
+        let c = |x: f64, k: usize| {
+            let v = ((x - self.origin[k]) / self.cell).floor();
+            if v.is_nan() { 0 } else { v.clamp(0.0, (self.n[k] - 1) as f64) as i64 }
+        };
+        ((c(lo[0], 0), c(hi[0], 0)), (c(lo[1], 1), c(hi[1], 1)))
     }
 
     /// Registers triangle `id` over the cells of its box, one unit of work each (a
@@ -268,7 +317,7 @@ impl Grid {
     fn insert(&mut self, id: usize, lo: P2, hi: P2, budget: &mut u64, spent: &mut u64) {
         let ((x0, x1), (y0, y1)) = self.range(lo, hi);
         let cells = (x1 - x0 + 1).saturating_mul(y1 - y0 + 1);
-        if cells > Self::MAX_CELLS {
+        if cells > Self::MAX_CELLS || self.entries.len() + cells as usize >= Self::NONE as usize {
             if spend(budget, spent, 1) {
                 self.big.push(id);
             }
@@ -277,9 +326,11 @@ impl Grid {
         if !spend(budget, spent, cells as usize) {
             return;
         }
-        for x in x0..=x1 {
-            for y in y0..=y1 {
-                self.cells.entry((x, y)).or_default().push(id);
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let c = (y * self.n[0] + x) as usize;
+                self.entries.push((id as u32, self.head[c]));
+                self.head[c] = (self.entries.len() - 1) as u32;
             }
         }
     }
@@ -291,20 +342,24 @@ impl Grid {
         let cells = (x1 - x0 + 1).saturating_mul(y1 - y0 + 1);
         let mut found: Vec<usize> = self.big.clone();
         if cells > Self::MAX_CELLS {
-            let entries: usize = self.cells.values().map(Vec::len).sum();
-            if !spend(budget, spent, self.big.len() + self.cells.len() + entries) {
+            if !spend(budget, spent, self.big.len() + self.entries.len()) {
                 return None;
             }
-            found.extend(self.cells.values().flatten().copied());
+            found.extend(self.entries.iter().map(|&(id, _)| id as usize));
         } else {
-            let entries: usize = (x0..=x1).flat_map(|x| (y0..=y1).map(move |y| (x, y))).filter_map(|c| self.cells.get(&c)).map(Vec::len).sum();
-            if !spend(budget, spent, self.big.len() + cells as usize + entries) {
+            if !spend(budget, spent, self.big.len() + cells as usize) {
                 return None;
             }
-            for x in x0..=x1 {
-                for y in y0..=y1 {
-                    if let Some(v) = self.cells.get(&(x, y)) {
-                        found.extend_from_slice(v);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let mut e = self.head[(y * self.n[0] + x) as usize];
+                    while e != Self::NONE {
+                        if !spend(budget, spent, 1) {
+                            return None;
+                        }
+                        let (id, next) = self.entries[e as usize];
+                        found.push(id as usize);
+                        e = next;
                     }
                 }
             }
@@ -634,6 +689,7 @@ mod tests {
 
     /// Triangles turning about one point on one plane: each cuts every later one into
     /// pieces, so without a budget the work grows as the square of their number.
+    pub(super) fn fan_pub(n: usize) -> Primitive { fan_of_turned_triangles(n) }
     fn fan_of_turned_triangles(n: usize) -> Primitive {
         let mut p = Primitive::default();
         for i in 0..n {
@@ -683,5 +739,16 @@ mod tests {
         assert_eq!(counts.triangles_removed, 999, "{counts:?}");
         assert!(counts.work <= 4 * 1000, "{counts:?}");
         assert_eq!(p.indices, tri);
+    }
+}
+#[cfg(test)]
+mod scratch_timing {
+    #[test]
+    fn time_full_budget() {
+        let mut p = super::tests::fan_pub(30000);
+        let t = std::time::Instant::now();
+        let mut budget = super::WORK_BUDGET;
+        let c = super::cut_coplanar_overlaps(&mut [&mut p], &[], &mut budget);
+        eprintln!("full budget: {:?} {:?}", t.elapsed(), c);
     }
 }

@@ -412,16 +412,18 @@ pub fn tessellate_all(patches: &[PatchInput], tolerance: f64, vertex_budget: usi
 
     let mut out: Vec<Tessellated> = patches.iter().zip(&breaks).map(|(p, b)| build_grid(p, b)).collect();
     // An inserted vertex can itself lie on a third patch's edge: repeat until none is
-    // inserted (bounded; each pass only adds vertices that already exist elsewhere).
+    // inserted (bounded; each pass only adds vertices that already exist elsewhere). The
+    // passes share one work budget.
+    let mut work_left: u64 = T_JUNCTION_WORK;
     for _ in 0..8 {
-        if fix_t_junctions(&mut out) == 0 {
+        if fix_t_junctions(&mut out, &mut work_left) == 0 {
             break;
         }
     }
     Ok(out)
 }
 
-/// Most spatial-hash cells one T-junction pass may visit.
+/// Most spatial-hash cells the T-junction passes of one conversion may visit together.
 pub const T_JUNCTION_WORK: u64 = 1 << 26;
 
 /// Largest distance (in the units of the positions) at which a boundary vertex of one
@@ -433,7 +435,7 @@ const WELD_EPS: f64 = 1e-3;
 /// meet with a vertex of one patch inside an edge of the other: a T-junction. Such a
 /// vertex is inserted, bit for bit, into the other patch's edge, and the triangle on
 /// that edge becomes a fan. Returns the number of vertices inserted.
-fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
+fn fix_t_junctions(ts: &mut [Tessellated], work_left: &mut u64) -> usize {
     // Boundary edges (used by one triangle) and their triangle, per patch.
     struct Edge {
         patch: usize,
@@ -472,9 +474,8 @@ fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
     for (i, (_, p)) in boundary_verts.iter().enumerate() {
         grid.entry(cell(p.map(|x| x as f64))).or_default().push(i);
     }
-    // Cells visited in this pass, at most: hostile geometry leaves T-junctions in place
-    // rather than taking unbounded time (real maps use a tiny fraction of this).
-    let mut work_left: u64 = T_JUNCTION_WORK;
+    // `work_left`: cells still to visit, at most: hostile geometry leaves T-junctions in
+    // place rather than taking unbounded time (real maps use a tiny fraction of this).
     // Per (patch, a, b) boundary edge: vertices to insert, with their fraction along it.
     let mut inserts: BTreeMap<(usize, u32, u32), Vec<(f64, [f32; 3])>> = BTreeMap::new();
     for e in &edges {
@@ -492,13 +493,14 @@ fn fix_t_junctions(ts: &mut [Tessellated]) -> usize {
         // The cells of the edge's box, or, when the box holds more cells than there are
         // occupied ones (a long edge: hostile coordinates can make it astronomically
         // long), the occupied cells inside the box. Either way the work per edge is at
-        // most the number of occupied cells, and the whole pass has a budget.
+        // most the number of occupied cells, and the passes have a budget.
         let box_cells = (0..3).fold(1u64, |n, k| n.saturating_mul(hi[k].abs_diff(lo[k]).saturating_add(1)));
         let cost = box_cells.min(grid.len() as u64);
-        if cost > work_left {
+        if cost > *work_left {
+            *work_left = 0;
             break;
         }
-        work_left -= cost;
+        *work_left -= cost;
         let cells: Vec<&Vec<usize>> = if box_cells <= grid.len() as u64 {
             let mut v = Vec::new();
             for x in lo[0]..=hi[0] {

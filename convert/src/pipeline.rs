@@ -61,6 +61,9 @@ pub struct Options {
     pub max_entry_bytes: u64,
     /// Most vertices that patch tessellation may create.
     pub max_patch_vertices: usize,
+    /// Most work the coplanar-overlap cut may spend, in the units of
+    /// [`crate::overlap::WORK_BUDGET`] (its default); past it, triangles stay whole.
+    pub overlap_work_budget: u64,
     /// Keep opaque faces that overlap on one plane as the BSP has them (by default the
     /// later one gives up the overlap: see [`crate::overlap`]).
     pub keep_overlaps: bool,
@@ -81,6 +84,7 @@ impl Default for Options {
             max_bsp_bytes: 1 << 30,
             max_entry_bytes: crate::vfs::DEFAULT_MAX_ENTRY_BYTES,
             max_patch_vertices: 20_000_000,
+            overlap_work_budget: crate::overlap::WORK_BUDGET,
             keep_overlaps: false,
         }
     }
@@ -444,7 +448,7 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
                 e.1.push(world_surface.get(key).map_or(&[][..], Vec::as_slice));
             }
         }
-        let mut budget = crate::overlap::WORK_BUDGET;
+        let mut budget = opts.overlap_work_budget;
         for (_, (mut list, faces)) in by_model {
             summary.surfaces.overlaps += crate::overlap::cut_coplanar_overlaps(&mut list, &faces, &mut budget);
         }
