@@ -689,7 +689,6 @@ mod tests {
 
     /// Triangles turning about one point on one plane: each cuts every later one into
     /// pieces, so without a budget the work grows as the square of their number.
-    pub(super) fn fan_pub(n: usize) -> Primitive { fan_of_turned_triangles(n) }
     fn fan_of_turned_triangles(n: usize) -> Primitive {
         let mut p = Primitive::default();
         for i in 0..n {
@@ -739,16 +738,5 @@ mod tests {
         assert_eq!(counts.triangles_removed, 999, "{counts:?}");
         assert!(counts.work <= 4 * 1000, "{counts:?}");
         assert_eq!(p.indices, tri);
-    }
-}
-#[cfg(test)]
-mod scratch_timing {
-    #[test]
-    fn time_full_budget() {
-        let mut p = super::tests::fan_pub(30000);
-        let t = std::time::Instant::now();
-        let mut budget = super::WORK_BUDGET;
-        let c = super::cut_coplanar_overlaps(&mut [&mut p], &[], &mut budget);
-        eprintln!("full budget: {:?} {:?}", t.elapsed(), c);
     }
 }
