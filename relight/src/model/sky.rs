@@ -6,10 +6,12 @@
 //! where the sky is visible. The model keeps their geometry once, per row,
 //!
 //! ```text
-//! D_i = 1/N sum_k max(0, n_i . s_k) V_ik          (V_ik: the ray towards s_k reaches sky)
+//! D_i = 1/N sum_k max(0, n_i . s_k) V_ik          (V_ik: the ray towards s_k crosses sky)
 //! ```
 //!
-//! (`n_i` turned towards `s_k` on a two-sided row, [`Rows::facing`]) and scales it by a
+//! (`n_i` turned towards `s_k` on a two-sided row, [`Rows::facing`]; `V_ik` as q3map2
+//! decides it for its suns, [`crate::trace::visibility::sky_visible_from`]: a sky surface
+//! crossed and no opaque one on the whole way, a ray along an edge stopped) and scales it by a
 //! fitted irradiance `K_c` [W/m^2]: `E_ic = K_c D_i`. A q3map2 sky
 //! light of value `v` is `K = pi e_per_byte v`; written for Blender as emission of the
 //! sky surfaces with radiance `K mean_k(cos s_k) / pi` (the same irradiance on an open,
@@ -46,7 +48,7 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
             for &w in dirs {
                 let n = rows.facing(i, w);
                 let c = n.dot(w);
-                if c > 0.0 && crate::trace::visibility::sun_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, rows.solid_ahead[i]) {
+                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, rows.solid_ahead[i]) {
                     s += c;
                 }
             }

@@ -1,15 +1,18 @@
 //! A bounding volume hierarchy over the scene's triangles, built once on the CPU (binned
 //! SAH) and flattened in depth-first order so the same arrays serve the CPU traversal here
-//! and the WGSL traversal in `shaders/common.wgsl`.
+//! and the WGSL traversal in `shaders/bvh.wgsl`.
 //!
 //! Layout: an interior node's left child is the next node; `right_or_first` is its right
 //! child; a leaf (`count > 0`) holds triangles `right_or_first .. right_or_first + count`
 //! of [`Bvh::tris`], each stored as `(v0, e1 = v1 - v0, e2 = v2 - v0)` for Moeller-Trumbore.
+//! A node's box is its triangles' box grown by twice [`EDGE_SLACK`] of its largest side,
+//! so the shadow walk's slack holds where a triangle's edge is the box's face.
 //!
-//! The hit test is exact. (q3map2 clips every triangle into its BSP leaves and tests
-//! the pieces with a 1% barycentric slack; taking that slack on whole triangles instead
-//! made the sun fixture worse, 0.0645 against 0.0000 relative error: a test of ours that
-//! matches q3map2's pieces is not worth their reconstruction.)
+//! The first-hit test is exact; shadow rays take [`EDGE_SLACK`], a hair. (q3map2 clips
+//! every triangle into its BSP leaves and tests the pieces with a 1% barycentric slack;
+//! taking that slack on whole triangles instead made the sun fixture worse, 0.0645
+//! against 0.0000 relative error: a test of ours that matches q3map2's pieces is not
+//! worth their reconstruction.)
 
 use glam::Vec3;
 
@@ -183,6 +186,38 @@ impl Bvh {
             }
         }
         None
+    }
+
+    /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
+    /// `accept` takes (by its index in the mesh), each triangle's barycentric range widened
+    /// by `slack` (0 or at most [`EDGE_SLACK`], what the nodes' boxes are grown for).
+    pub fn hits_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> bool {
+        debug_assert!((0.0..=EDGE_SLACK).contains(&slack));
+        if self.tris.is_empty() {
+            return false;
+        }
+        let inv = d.recip();
+        let mut stack = Stack::root();
+        while let Some(here) = stack.pop() {
+            let node = &self.nodes[here as usize];
+            if !slab(node, o, inv, t_max) {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
+                    if let Some(t) = intersect(tri, o, d, slack) {
+                        if t > t_min && t < t_max && accept(self.tri_index[first + k]) {
+                            return true;
+                        }
+                    }
+                }
+            } else {
+                stack.push(node.right_or_first);
+                stack.push(here + 1);
+            }
+        }
+        false
     }
 
     /// Nearest hit `(t, triangle index in the mesh)` along `o + s d`, `s` in `(0, t_max)`.
@@ -433,7 +468,12 @@ fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>
         cb.grow(*c);
     }
     let me = nodes.len();
-    nodes.push(Node { min: bb.lo.to_array(), right_or_first: base as u32, max: bb.hi.to_array(), count: items.len() as u32 });
+    // The box holds its triangles as the shadow walk tests them, slack included: grown by
+    // twice `EDGE_SLACK` of its largest side (a triangle's slack reaches at most that far
+    // beyond it). Exact boxes would cull a ray through a triangle's edge where the edge is
+    // the box's face, as the edges of Quake's axis-aligned brushes are (`skylight_bright`).
+    let pad = Vec3::splat(2.0 * EDGE_SLACK * (bb.hi - bb.lo).max_element().max(0.0));
+    nodes.push(Node { min: (bb.lo - pad).to_array(), right_or_first: base as u32, max: (bb.hi + pad).to_array(), count: items.len() as u32 });
     // Deep enough that the stack of depth MAX_DEPTH always suffices (one slot per level + 1).
     if items.len() <= LEAF_SIZE || depth + 2 >= MAX_DEPTH {
         return me as u32;
@@ -537,6 +577,28 @@ mod tests {
     /// (walls that stop them, openings at grazing angles, segments ending on a wall),
     /// each asked with the occluder its predecessor left, with none, and with indices
     /// that are out of range.
+    #[test]
+    fn a_ray_along_the_box_face_through_an_edge_is_stopped() {
+        // A ceiling panel (y = 2, x from 0.5 to 2.5 m) and rays straight up a hair outside
+        // its edge x = 0.5, which is also its box's face: the slack takes them, and the
+        // box must not cull them first (the floor under `skylight_bright`'s opening).
+        let mut mesh = crate::testutil::room(2).0;
+        mesh.triangles.clear();
+        mesh.tri_material.clear();
+        mesh.tri_source.clear();
+        crate::testutil::push_quad(&mut mesh, [[0.5, 2.0, 0.5], [2.5, 2.0, 0.5], [2.5, 2.0, 2.5], [0.5, 2.0, 2.5]], Vec3::NEG_Y);
+        let bvh = Bvh::build(&mesh);
+        for k in 0..200u32 {
+            let z = 0.6 + 1.8 * hash01(k, 3);
+            let outside = 0.5 - EDGE_SLACK * hash01(k, 5);
+            let o = Vec3::new(outside, 0.0, z);
+            assert!(bvh.occluded(o, Vec3::Y * 4.0, 1e-4, 1.0), "ray {k} at x = {outside}, z = {z}");
+            assert!(bvh.hits_where(o, Vec3::Y * 4.0, 1e-4, 1.0, EDGE_SLACK, |_| true));
+            // Clearly outside, nothing stops it.
+            assert!(!bvh.occluded(Vec3::new(0.49, 0.0, z), Vec3::Y * 4.0, 1e-4, 1.0));
+        }
+    }
+
     #[test]
     fn the_previous_occluder_gives_the_walks_answer() {
         let (mesh, _) = crate::testutil::room(4);

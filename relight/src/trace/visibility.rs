@@ -12,7 +12,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::rows::{Rows, Sampling};
-use crate::trace::bvh::{Bvh, Occluder};
+use crate::trace::bvh::{Bvh, Occluder, EDGE_SLACK};
 
 
 #[derive(Debug, Clone, Default)]
@@ -143,6 +143,30 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
         None => !sky.iter().any(|&k| k),
         Some((_, t)) => sky.get(t as usize).copied().unwrap_or(false),
     }
+}
+
+/// Whether one of the sky light's suns, towards `to_sun`, lights `x` (normal `n`), as
+/// q3map2 decides it for its suns: the ray crosses a sky surface and no opaque surface
+/// anywhere along the scene (q3map2 traces the whole way, not to the first hit), and a
+/// ray along an opaque face's edge is stopped by it (the shadow walk's slack,
+/// [`crate::trace::bvh::EDGE_SLACK`]; q3map2's own is 1% of its trace pieces). Its sky
+/// light is many such suns, and the map's edges are where the rays graze: the floor
+/// under a sky opening, lit by the straight-up sun along the opening's walls (fixture
+/// `skylight_bright`: 0.0388 -> 0.0250).
+pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], ahead: crate::rows::SolidAhead) -> bool {
+    if !(n.dot(to_sun) > 0.0) {
+        return false;
+    }
+    if s.on_epsilon > 0.0 && ahead.along(to_sun) {
+        return false;
+    }
+    let reach = bvh.reach();
+    let (o, d, t_min) = (x + n * s.ray_offset, to_sun * reach, s.inhibit / reach);
+    let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
+    if !sky.iter().any(|&k| k) {
+        return !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |_| true);
+    }
+    bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky) && !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t))
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
