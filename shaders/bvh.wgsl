@@ -33,6 +33,18 @@ fn slab(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
 // share hits one of them (the CPU's `trace::bvh::EDGE_SLACK`; first-hit walks pass 0).
 const EDGE_SLACK: f32 = 1e-5;
 
+// The node's box as the shadow walk's hit test sees its triangles: grown by twice the
+// slack of its largest side, so a ray through an edge on the box's face is not culled
+// (the CPU's `slab_shadow`).
+fn slab_shadow(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
+    let ext = node.max - node.min;
+    let pad = vec3<f32>(2.0 * EDGE_SLACK * max(max(max(ext.x, ext.y), ext.z), 0.0));
+    var grown = node;
+    grown.min = node.min - pad;
+    grown.max = node.max + pad;
+    return slab(grown, o, inv, t_max);
+}
+
 // Moeller-Trumbore, two-sided, barycentric coordinates within [-slack, 1 + slack];
 // returns the ray parameter or -1.
 fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, slack: f32) -> f32 {
@@ -70,7 +82,7 @@ fn occluded(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
         sp = sp - 1u;
         let here = stack[sp];
         let node = nodes[here];
-        if (!slab(node, o, inv, t_max)) {
+        if (!slab_shadow(node, o, inv, t_max)) {
             continue;
         }
         if (node.count > 0u) {

@@ -5,8 +5,8 @@
 //! Layout: an interior node's left child is the next node; `right_or_first` is its right
 //! child; a leaf (`count > 0`) holds triangles `right_or_first .. right_or_first + count`
 //! of [`Bvh::tris`], each stored as `(v0, e1 = v1 - v0, e2 = v2 - v0)` for Moeller-Trumbore.
-//! A node's box is its triangles' box grown by twice [`EDGE_SLACK`] of its largest side,
-//! so the shadow walk's slack holds where a triangle's edge is the box's face.
+//! The shadow walks grow a node's box by twice [`EDGE_SLACK`] of its largest side, so
+//! their slack holds where a triangle's edge is the box's face.
 //!
 //! The first-hit test is exact; shadow rays take [`EDGE_SLACK`], a hair. (q3map2 clips
 //! every triangle into its BSP leaves and tests the pieces with a 1% barycentric slack;
@@ -138,7 +138,7 @@ impl Bvh {
         if let Some((leaf, k)) = last.0 {
             if let (Some(node), Some(tri)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize)) {
                 let inv = d.recip();
-                if intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max) && slab(node, o, inv, t_max) {
+                if intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max) && slab_shadow(node, o, inv, t_max) {
                     return true;
                 }
             }
@@ -159,7 +159,7 @@ impl Bvh {
             return None;
         }
         let inv = d.recip();
-        if !slab(&self.nodes[0], o, inv, t_max) {
+        if !slab_shadow(&self.nodes[0], o, inv, t_max) {
             return None;
         }
         // Children are tested where their parent is visited and only the boxes the segment
@@ -179,7 +179,7 @@ impl Bvh {
             } else {
                 let (left, right) = (here + 1, node.right_or_first);
                 for child in [right, left] {
-                    if slab(&self.nodes[child as usize], o, inv, t_max) {
+                    if slab_shadow(&self.nodes[child as usize], o, inv, t_max) {
                         stack.push(child);
                     }
                 }
@@ -190,7 +190,7 @@ impl Bvh {
 
     /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
     /// `accept` takes (by its index in the mesh), each triangle's barycentric range widened
-    /// by `slack` (0 or at most [`EDGE_SLACK`], what the nodes' boxes are grown for).
+    /// by `slack` (0 or at most [`EDGE_SLACK`], what the shadow walk's boxes are grown for).
     pub fn hits_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> bool {
         debug_assert!((0.0..=EDGE_SLACK).contains(&slack));
         if self.tris.is_empty() {
@@ -200,7 +200,7 @@ impl Bvh {
         let mut stack = Stack::root();
         while let Some(here) = stack.pop() {
             let node = &self.nodes[here as usize];
-            if !slab(node, o, inv, t_max) {
+            if !slab_shadow(node, o, inv, t_max) {
                 continue;
             }
             if node.count > 0 {
@@ -370,9 +370,25 @@ impl Stack {
     }
 }
 
+/// [`slab`] on the node's box as the shadow walk's hit test sees its triangles: grown by
+/// twice [`EDGE_SLACK`] of its largest side (a triangle's slack reaches at most that far
+/// beyond it). The exact box would cull a ray through a triangle's edge where that edge
+/// is the box's face, as the edges of Quake's axis-aligned brushes are (the floor under
+/// `skylight_bright`'s opening). The same in WGSL (`slab_shadow`); the first-hit walks
+/// keep the exact box (their hit test has no slack, and their ties stay as they were).
+fn slab_shadow(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
+    let (lo, hi) = (Vec3::from(node.min), Vec3::from(node.max));
+    let pad = Vec3::splat(2.0 * EDGE_SLACK * (hi - lo).max_element().max(0.0));
+    slab_box(lo - pad, hi + pad, o, inv, t_max)
+}
+
 fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
-    let t0 = (Vec3::from(node.min) - o) * inv;
-    let t1 = (Vec3::from(node.max) - o) * inv;
+    slab_box(Vec3::from(node.min), Vec3::from(node.max), o, inv, t_max)
+}
+
+fn slab_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> bool {
+    let t0 = (min - o) * inv;
+    let t1 = (max - o) * inv;
     let near = t0.min(t1).max_element().max(0.0);
     let far = t0.max(t1).min_element().min(t_max);
     // NaN (0 * inf on a slab face) compares false: treated as a hit, which is conservative.
@@ -468,12 +484,7 @@ fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>
         cb.grow(*c);
     }
     let me = nodes.len();
-    // The box holds its triangles as the shadow walk tests them, slack included: grown by
-    // twice `EDGE_SLACK` of its largest side (a triangle's slack reaches at most that far
-    // beyond it). Exact boxes would cull a ray through a triangle's edge where the edge is
-    // the box's face, as the edges of Quake's axis-aligned brushes are (`skylight_bright`).
-    let pad = Vec3::splat(2.0 * EDGE_SLACK * (bb.hi - bb.lo).max_element().max(0.0));
-    nodes.push(Node { min: (bb.lo - pad).to_array(), right_or_first: base as u32, max: (bb.hi + pad).to_array(), count: items.len() as u32 });
+    nodes.push(Node { min: bb.lo.to_array(), right_or_first: base as u32, max: bb.hi.to_array(), count: items.len() as u32 });
     // Deep enough that the stack of depth MAX_DEPTH always suffices (one slot per level + 1).
     if items.len() <= LEAF_SIZE || depth + 2 >= MAX_DEPTH {
         return me as u32;
