@@ -49,23 +49,26 @@ pub fn split(w: &[Corner], limit: f32) -> Option<(usize, f32)> {
 /// `q3map_lightSubdivide`, as its bounce lights'): `w` halved as [`split`] says, each half
 /// cut again ([`clip`], corners within `epsilon` of a cut going to both halves), the
 /// pieces appended to `out` in q3map2's order (front before back); `limit` and `epsilon`
-/// in m.
-pub fn cut(w: &[Vec3], limit: f32, epsilon: f32, out: &mut Vec<Vec<Vec3>>) {
-    fn go(w: &[Corner], limit: f32, epsilon: f32, depth: usize, out: &mut Vec<Vec<Vec3>>) {
+/// in m. Each cut takes one from `cuts_left`; with none left (or at [`MAX_DEPTH`]) a
+/// winding stays whole, so a file's absurd windings or limits cannot make pieces without
+/// bound.
+pub fn cut(w: &[Vec3], limit: f32, epsilon: f32, cuts_left: &mut usize, out: &mut Vec<Vec<Vec3>>) {
+    fn go(w: &[Corner], limit: f32, epsilon: f32, depth: usize, cuts_left: &mut usize, out: &mut Vec<Vec<Vec3>>) {
         if w.len() < 3 {
             return;
         }
-        match split(w, limit).filter(|_| depth < MAX_DEPTH) {
+        match split(w, limit).filter(|_| depth < MAX_DEPTH && *cuts_left > 0) {
             Some((axis, dist)) => {
+                *cuts_left -= 1;
                 let (front, back) = clip(w, axis, dist, epsilon);
-                go(&front, limit, epsilon, depth + 1, out);
-                go(&back, limit, epsilon, depth + 1, out);
+                go(&front, limit, epsilon, depth + 1, cuts_left, out);
+                go(&back, limit, epsilon, depth + 1, cuts_left, out);
             }
             None => out.push(w.iter().map(|c| c.p).collect()),
         }
     }
     let corners: Vec<Corner> = w.iter().map(|&p| Corner { p, bary: [0.0; 3] }).collect();
-    go(&corners, limit, epsilon, 0, out);
+    go(&corners, limit, epsilon, 0, cuts_left, out);
 }
 
 /// `RadClipWindingEpsilon`: `w` cut by the plane `p[axis] = dist` into its front
@@ -222,7 +225,7 @@ mod tests {
     fn subdivision_cuts_to_the_limit_and_keeps_the_area() {
         let w = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, 3.0), Vec3::new(5.0, 0.0, 0.0)];
         let mut out = Vec::new();
-        cut(&w, 1.0, 0.0, &mut out);
+        cut(&w, 1.0, 0.0, &mut usize::MAX, &mut out);
         assert!(out.len() > 10);
         for p in &out {
             let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
@@ -242,8 +245,20 @@ mod tests {
     fn an_absurd_winding_stops_at_the_depth_cap() {
         let w = [Vec3::ZERO, Vec3::new(1e7, 0.0, 0.0), Vec3::new(0.0, 0.0, 1e7)];
         let mut out = Vec::new();
-        cut(&w, 1.0, 0.01, &mut out);
+        cut(&w, 1.0, 0.01, &mut usize::MAX, &mut out);
         assert!(out.len() <= 1 << MAX_DEPTH && out.len() > 1000, "{} pieces", out.len());
+        let total: f64 = out.iter().map(|p| polygon_area(p) as f64).sum();
+        assert!((total / polygon_area(&w) as f64 - 1.0).abs() < 1e-3, "{total}");
+    }
+
+    /// Cuts stop when the budget does: one piece more per cut, the rest left whole.
+    #[test]
+    fn cuts_stop_at_the_budget() {
+        let w = [Vec3::ZERO, Vec3::new(1e4, 0.0, 0.0), Vec3::new(0.0, 0.0, 1e4)];
+        let (mut out, mut left) = (Vec::new(), 1000);
+        cut(&w, 1.0, 0.01, &mut left, &mut out);
+        assert_eq!(left, 0);
+        assert!(out.len() <= 1001 && out.len() > 500, "{} pieces", out.len());
         let total: f64 = out.iter().map(|p| polygon_area(p) as f64).sum();
         assert!((total / polygon_area(&w) as f64 - 1.0).abs() < 1e-3, "{total}");
     }
@@ -254,12 +269,12 @@ mod tests {
     fn cuts_follow_quakes_axes() {
         let w = [Vec3::ZERO, Vec3::new(0.0, 4.0, 0.0), Vec3::new(0.0, 0.0, 4.0)];
         let mut out = Vec::new();
-        cut(&w, 3.0, 0.01, &mut out);
+        cut(&w, 3.0, 0.01, &mut usize::MAX, &mut out);
         assert!(out.len() >= 2);
         assert!(out[0].iter().all(|p| p.z >= 2.0 - 1e-5), "the first piece is the front of the cut at z = 2: {:?}", out[0]);
         // An extent equal to the limit is not cut (q3map2 compares in units, `>`).
         let mut whole = Vec::new();
-        cut(&[Vec3::ZERO, Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 3.0)], 3.0, 0.01, &mut whole);
+        cut(&[Vec3::ZERO, Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 3.0)], 3.0, 0.01, &mut usize::MAX, &mut whole);
         assert_eq!(whole.len(), 1);
     }
 

@@ -107,6 +107,7 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
     }
     let mesh = &scene.mesh;
     let mut out = Vec::new();
+    let mut cuts_left = CUT_BUDGET;
     // Emitting patches as q3map2 meshed them, where the scene carries its meshes and they
     // still describe the triangles; their triangles then emit nothing themselves.
     let mut taken = vec![false; mesh.triangles.len()];
@@ -125,7 +126,7 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
             }
             groups[g].q3map2_meshes += 1;
             for (w, normal) in pm.windings() {
-                emit(scene, &mut groups[g], g as u32, m, w, normal, &mut out);
+                emit(scene, &mut groups[g], g as u32, m, w, normal, &mut cuts_left, &mut out);
             }
         }
     }
@@ -141,18 +142,26 @@ pub fn patches(scene: &Scene) -> (Vec<Group>, Vec<Patch>) {
         if normal == Vec3::ZERO {
             continue;
         }
-        emit(scene, &mut groups[g as usize], g, m, w, normal, &mut out);
+        emit(scene, &mut groups[g as usize], g, m, w, normal, &mut cuts_left, &mut out);
     }
     (groups, out)
 }
 
+/// Cuts of the emitting windings in all, every surface light's together (see
+/// [`super::area::cut`]). Real maps make a few hundred to a few thousand patches
+/// (oacmpdm1: 784); past the budget, which only a file's absurd windings or
+/// `subdivide` reach, the windings left stay whole, so the patches, and the basis's cost
+/// of rows times patches, stay bounded.
+pub const CUT_BUDGET: usize = 1 << 16;
+
 /// One emitting winding (q3map2's order) of material `m` in group `g`: cut as q3map2
-/// cuts it, each piece a patch (and its backsplash copy).
-fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal: Vec3, out: &mut Vec<Patch>) {
+/// cuts it (from `cuts_left`), each piece a patch (and its backsplash copy).
+#[allow(clippy::too_many_arguments)]
+fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal: Vec3, cuts_left: &mut usize, out: &mut Vec<Patch>) {
     let u = scene.units_m;
     let em = scene.materials[m].emitter.as_ref().expect("grouped materials emit");
     let mut pieces = Vec::new();
-    super::area::cut(&w, em.subdivide * u, super::area::CLIP_EPSILON_UNITS * u, &mut pieces);
+    super::area::cut(&w, em.subdivide * u, super::area::CLIP_EPSILON_UNITS * u, cuts_left, &mut pieces);
     for piece in pieces {
         let area = super::area::polygon_area(&piece);
         // q3map2 drops pieces under one square unit.
@@ -362,6 +371,26 @@ mod tests {
             assert!((two[front] - one[front]).abs() <= 1e-6 * one[front].max(1e-3), "the front is the same either way");
             assert!((two[behind] - two[front]).abs() <= 2e-3 * two[front].max(1e-3), "behind {} vs front {}", two[behind], two[front]);
         }
+    }
+
+    /// A file's emitter far larger than a map (the room's walls scaled to 400 m, 15 748
+    /// units, subdivided every 8 units: four million pieces a wall) is cut until the
+    /// shared budget is spent, and no further: its patches stay bounded.
+    #[test]
+    fn a_huge_emitter_stops_at_the_cut_budget() {
+        use crate::scene::{Emitter, Material};
+        let (mut mesh, _) = crate::testutil::room(2);
+        mesh.positions.iter_mut().for_each(|p| *p *= 100.0);
+        let big = Emitter { value: 100.0, color: [1.0; 3], subdivide: 8.0, backsplash: (0.0, 23.0) };
+        let emitting = Material { emitter: Some(big), ..crate::testutil::material("wall") };
+        let mut scene = crate::testutil::scene(mesh, vec![emitting]);
+        scene.mesh.tri_material.iter_mut().for_each(|m| *m = 0);
+        let (groups, patches) = super::patches(&scene);
+        let tris = scene.mesh.triangles.len();
+        // Each cut makes one more piece.
+        assert!(patches.len() <= CUT_BUDGET + tris, "{} patches", patches.len());
+        assert!(patches.len() > CUT_BUDGET / 2, "the budget was spent: {} patches", patches.len());
+        assert_eq!(groups.len(), 1);
     }
 
 }
