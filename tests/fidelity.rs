@@ -361,7 +361,9 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// (8), 0.1889 (28), 0.2563 (63), 0.2082 (50), 0.0897 (13); on 2026-11-26 (sixth), oacmpdm4
 /// with its blue flames casting no shadow: 0.1462 (53); on 2026-11-27 (second), with q3map2's
 /// bounce lights, the placement's bounce estimate through them and surface lights cut along
-/// Quake's axes: 0.2112 (9), 0.1958 (24), 0.2549 (63), 0.1310 (55, 10/10), 0.0895 (15).
+/// Quake's axes: 0.2112 (9), 0.1958 (24), 0.2549 (63), 0.1310 (55, 10/10), 0.0895 (15); on 2026-11-27 (third), with the shadow
+/// walk's boxes grown by its slack and the sky's suns traced as q3map2 does: 0.2192 (1),
+/// 0.1957 (24), 0.2563 (62), 0.1290 (56, 10/10), 0.0871 (16).
 /// oacmpdm2's default is path dependent: its
 /// placement subsample has three offsets (`--seed` 1, 2, 3: 0.2313 with 12 lights, 0.1907
 /// with 28, 0.1966 with 24), so its bound leaves that spread room.
