@@ -123,6 +123,16 @@ impl Visibility {
     }
 }
 
+/// The ray towards a sun from a row, `(origin, segment across the scene, t_min)`: none
+/// when the sun is behind the row, or exactly along the wall a row on its plane meets.
+fn sun_ray(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, ahead: crate::rows::SolidAhead) -> Option<(Vec3, Vec3, f32)> {
+    if !(n.dot(to_sun) > 0.0) || (s.on_epsilon > 0.0 && ahead.along(to_sun)) {
+        return None;
+    }
+    let reach = bvh.reach();
+    Some((x + n * s.ray_offset, to_sun * reach, s.inhibit / reach))
+}
+
 /// Sun visibility: the sun (direction `to_sun`, unit) is in front of the row and the ray
 /// from `x + n * offset` towards it first meets a sky surface (`sky[t]` for mesh triangle
 /// `t`), as q3map2 decides (a Quake map is sealed: sunlight comes in through sky
@@ -131,15 +141,8 @@ impl Visibility {
 /// the sun. From a point on a wall's plane with its brush on Quake's positive side, a sun
 /// exactly along the wall is not seen ([`crate::rows::SolidAhead::along`]).
 pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], ahead: crate::rows::SolidAhead) -> bool {
-    if !(n.dot(to_sun) > 0.0) {
-        return false;
-    }
-    if s.on_epsilon > 0.0 && ahead.along(to_sun) {
-        return false;
-    }
-    let reach = bvh.reach();
-    let o = x + n * s.ray_offset;
-    match bvh.first_hit_after(o, to_sun * reach, s.inhibit / reach, 1.0) {
+    let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
+    match bvh.first_hit_after(o, d, t_min, 1.0) {
         None => !sky.iter().any(|&k| k),
         Some((_, t)) => sky.get(t as usize).copied().unwrap_or(false),
     }
@@ -154,14 +157,7 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// under a sky opening, lit by the straight-up sun along the opening's walls (fixture
 /// `skylight_bright`: 0.0388 -> 0.0250).
 pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], ahead: crate::rows::SolidAhead) -> bool {
-    if !(n.dot(to_sun) > 0.0) {
-        return false;
-    }
-    if s.on_epsilon > 0.0 && ahead.along(to_sun) {
-        return false;
-    }
-    let reach = bvh.reach();
-    let (o, d, t_min) = (x + n * s.ray_offset, to_sun * reach, s.inhibit / reach);
+    let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
     let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
     if !sky.iter().any(|&k| k) {
         return !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |_| true);
