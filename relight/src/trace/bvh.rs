@@ -584,10 +584,6 @@ mod tests {
         assert_eq!(missed, 0);
     }
 
-    /// The remembered occluder never changes an answer: segments in and around a room
-    /// (walls that stop them, openings at grazing angles, segments ending on a wall),
-    /// each asked with the occluder its predecessor left, with none, and with indices
-    /// that are out of range.
     #[test]
     fn a_ray_along_the_box_face_through_an_edge_is_stopped() {
         // A ceiling panel (y = 2, x from 0.5 to 2.5 m) and rays straight up a hair outside
@@ -610,6 +606,10 @@ mod tests {
         }
     }
 
+    /// The remembered occluder never changes an answer: segments in and around a room
+    /// (walls that stop them, openings at grazing angles, segments ending on a wall),
+    /// each asked with the occluder its predecessor left, with none, and with indices
+    /// that are out of range.
     #[test]
     fn the_previous_occluder_gives_the_walks_answer() {
         let (mesh, _) = crate::testutil::room(4);
