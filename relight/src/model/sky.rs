@@ -41,6 +41,7 @@ pub fn directions(iterations: u32) -> Vec<Vec3> {
 /// Traces the basis for `dirs` (rayon over rows). `sky[t]` marks sky triangles.
 pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
     let n = dirs.len().max(1) as f32;
+    let open = !sky.iter().any(|&k| k);
     let d = (0..rows.len())
         .into_par_iter()
         .map(|i| {
@@ -48,7 +49,7 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
             for &w in dirs {
                 let n = rows.facing(i, w);
                 let c = n.dot(w);
-                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, rows.solid_ahead[i]) {
+                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i]) {
                     s += c;
                 }
             }

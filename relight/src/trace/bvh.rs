@@ -155,6 +155,19 @@ impl Bvh {
     /// The first occluder the walk finds on the segment (not the nearest): `(leaf node,
     /// index into tris)`.
     fn occluder(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(u32, u32)> {
+        self.occluder_where(o, d, t_min, t_max, EDGE_SLACK, |_| true)
+    }
+
+    /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
+    /// `accept` takes (by its index in the mesh), each triangle's barycentric range widened
+    /// by `slack` (0 or at most [`EDGE_SLACK`], what the shadow walk's boxes are grown for).
+    pub fn hits_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> bool {
+        self.occluder_where(o, d, t_min, t_max, slack, accept).is_some()
+    }
+
+    /// The shadow walk: the first hit it finds that `accept` takes (see [`Bvh::hits_where`]).
+    fn occluder_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> Option<(u32, u32)> {
+        debug_assert!((0.0..=EDGE_SLACK).contains(&slack));
         if self.tris.is_empty() {
             return None;
         }
@@ -170,8 +183,8 @@ impl Bvh {
             if node.count > 0 {
                 let first = node.right_or_first as usize;
                 for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
-                    if let Some(t) = intersect(tri, o, d, EDGE_SLACK) {
-                        if t > t_min && t < t_max {
+                    if let Some(t) = intersect(tri, o, d, slack) {
+                        if t > t_min && t < t_max && accept(self.tri_index[first + k]) {
                             return Some((here, (first + k) as u32));
                         }
                     }
@@ -186,38 +199,6 @@ impl Bvh {
             }
         }
         None
-    }
-
-    /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
-    /// `accept` takes (by its index in the mesh), each triangle's barycentric range widened
-    /// by `slack` (0 or at most [`EDGE_SLACK`], what the shadow walk's boxes are grown for).
-    pub fn hits_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> bool {
-        debug_assert!((0.0..=EDGE_SLACK).contains(&slack));
-        if self.tris.is_empty() {
-            return false;
-        }
-        let inv = d.recip();
-        let mut stack = Stack::root();
-        while let Some(here) = stack.pop() {
-            let node = &self.nodes[here as usize];
-            if !slab_shadow(node, o, inv, t_max) {
-                continue;
-            }
-            if node.count > 0 {
-                let first = node.right_or_first as usize;
-                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
-                    if let Some(t) = intersect(tri, o, d, slack) {
-                        if t > t_min && t < t_max && accept(self.tri_index[first + k]) {
-                            return true;
-                        }
-                    }
-                }
-            } else {
-                stack.push(node.right_or_first);
-                stack.push(here + 1);
-            }
-        }
-        false
     }
 
     /// Nearest hit `(t, triangle index in the mesh)` along `o + s d`, `s` in `(0, t_max)`.
@@ -561,17 +542,22 @@ mod tests {
     use super::*;
     use crate::model::bounce::hash01;
 
+    /// The BVH of one quad (two triangles), corners in order, facing `normal`.
+    fn one_quad(corners: [[f32; 3]; 4], normal: Vec3) -> Bvh {
+        let mut mesh = crate::testutil::room(2).0;
+        mesh.triangles.clear();
+        mesh.tri_material.clear();
+        mesh.tri_source.clear();
+        crate::testutil::push_quad(&mut mesh, corners, normal);
+        Bvh::build(&mesh)
+    }
+
     /// A ray through the diagonal two triangles of a quad share hits the quad, wherever
     /// along the diagonal it passes (in f32 the exact test can miss both halves).
     #[test]
     fn a_ray_through_a_shared_edge_is_stopped() {
         // A quad at x = 0.3, in y, z from 0.1 to 2.7 (metres), cut along its diagonal.
-        let mut mesh = crate::testutil::room(2).0;
-        mesh.triangles.clear();
-        mesh.tri_material.clear();
-        mesh.tri_source.clear();
-        crate::testutil::push_quad(&mut mesh, [[0.3, 0.1, 0.1], [0.3, 2.7, 0.1], [0.3, 2.7, 2.7], [0.3, 0.1, 2.7]], Vec3::X);
-        let bvh = Bvh::build(&mesh);
+        let bvh = one_quad([[0.3, 0.1, 0.1], [0.3, 2.7, 0.1], [0.3, 2.7, 2.7], [0.3, 0.1, 2.7]], Vec3::X);
         let mut missed = 0;
         for k in 0..2000u32 {
             // A point on the diagonal, and a ray through it from a random origin in front.
@@ -589,12 +575,7 @@ mod tests {
         // A ceiling panel (y = 2, x from 0.5 to 2.5 m) and rays straight up a hair outside
         // its edge x = 0.5, which is also its box's face: the slack takes them, and the
         // box must not cull them first (the floor under `skylight_bright`'s opening).
-        let mut mesh = crate::testutil::room(2).0;
-        mesh.triangles.clear();
-        mesh.tri_material.clear();
-        mesh.tri_source.clear();
-        crate::testutil::push_quad(&mut mesh, [[0.5, 2.0, 0.5], [2.5, 2.0, 0.5], [2.5, 2.0, 2.5], [0.5, 2.0, 2.5]], Vec3::NEG_Y);
-        let bvh = Bvh::build(&mesh);
+        let bvh = one_quad([[0.5, 2.0, 0.5], [2.5, 2.0, 0.5], [2.5, 2.0, 2.5], [0.5, 2.0, 2.5]], Vec3::NEG_Y);
         for k in 0..200u32 {
             let z = 0.6 + 1.8 * hash01(k, 3);
             let outside = 0.5 - EDGE_SLACK * hash01(k, 5);

@@ -156,13 +156,14 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// light is many such suns, and the map's edges are where the rays graze: the floor
 /// under a sky opening, lit by the straight-up sun along the opening's walls (fixture
 /// `skylight_bright`: 0.0388 -> 0.0250).
-pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], ahead: crate::rows::SolidAhead) -> bool {
+///
+/// `open`: the scene has no sky surface (a glTF from elsewhere): a ray that nothing
+/// stops sees the sun. The caller finds it once, not per ray.
+#[allow(clippy::too_many_arguments)]
+pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead) -> bool {
     let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
     let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
-    if !sky.iter().any(|&k| k) {
-        return !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |_| true);
-    }
-    bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky) && !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t))
+    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t))
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
