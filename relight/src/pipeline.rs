@@ -1139,8 +1139,9 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 /// without it, or when it lowers it at all and leaving it out would take the error more
 /// than [`TERM_GAIN`] above the lowest the decisions have reached: terms are left out one
 /// by one, and each small loss counts against one allowance for them all (five surface
-/// lights of oacmpctf1, each under the gain, had added up to 0.0066). Appends one report
-/// per term considered.
+/// lights of oacmpctf1, each under the gain, had added up to 0.0066). Every term is
+/// weighed without the ambient and the ambient last (see the ambient's entry below).
+/// Appends one report per term considered.
 fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, out: &mut Vec<TermReport>) {
     type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
     // Per term: its name, the plan's choice, how to switch it on or off from the entry,
@@ -1177,7 +1178,14 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
             list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None }), None));
         }
     }
-    list.push(("ambient".into(), Optional::Auto, Box::new(|m, e, on| m.ambient = if on { e.ambient.or(Some([1e-6; 3])) } else { None }), None));
+    // The ambient is the catch-all: a constant that stands in, in part, for any term that
+    // brightens broadly (the bounce above all). Every other term is weighed without it, and
+    // the ambient last, on what they leave. Weighed beside it, oacmpdm1's bounce (its
+    // source lights, read through gamma 1.25) gained 0.0042, stayed out, and the ambient
+    // was kept: 0.1581; weighed without it, the bounce is kept and the ambient not
+    // needed: 0.1543.
+    let entry_ambient = fit.model.ambient;
+    list.push(("ambient".into(), Optional::Auto, Box::new(move |m, _, on| m.ambient = if on { entry_ambient.or(Some([1e-6; 3])) } else { None }), None));
     // Which terms a model has on (the lights aside).
     let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
     // The entry's error as the phases saw it (their visibility; the value only).
@@ -1186,7 +1194,9 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
         fit.value_frozen(&m).rel_error
     };
     let entry = (fit.model.clone(), fit.vis.clone(), entry_error);
-    // The error of the model as it stands; a variant equal to it is not fitted again.
+    fit.model.ambient = None;
+    // The error of the model as it stands (the ambient aside); a variant equal to it is
+    // not fitted again.
     let mut current = fit.fit_linear();
     // The lowest error the decisions have reached (what the allowance is counted from).
     let mut lowest = current;
@@ -1643,6 +1653,44 @@ mod tests {
         assert!(b.kept, "the bounce left out: {} without, {} with", b.rel_error_without, b.rel_error_with);
         assert!(b.rel_error_with < 0.01, "the bounce at full strength explains the data: {}", b.rel_error_with);
         assert_eq!(fit.model.bounce, Some([1.0; 3]));
+    }
+
+    /// The ambient, a constant, stands in for part of any broad term (the bounce above
+    /// all), so every other term is weighed without it and the ambient last: the entry
+    /// here has the ambient the phases fitted in place of the bounce. The bounce's "without"
+    /// is the lights alone, not the lights and that ambient; the bounce is kept, the ambient
+    /// then left out.
+    #[test]
+    fn terms_are_weighed_without_the_ambient_and_the_ambient_last() {
+        use super::{decide_terms, Optional, Options, TermPlan};
+        use crate::backend::Cpu;
+        use crate::fit::Fitter;
+        use crate::model::{Light, Model};
+        use glam::Vec3;
+        let (mesh, mut rows) = crate::testutil::room(6);
+        let bases = crate::testutil::chain_bases(rows.len(), 3);
+        let bvh = crate::trace::bvh::Bvh::build(&mesh);
+        let (lo, hi) = mesh.bounds();
+        let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
+        let truth = Model { lights: lights.clone(), bounce: Some([1.0; 3]), ..Model::default() };
+        crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 1e-3);
+        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        fit.locked = vec![false; 2];
+        fit.model = Model { lights: lights.clone(), ..Model::default() };
+        let alone = fit.fit_linear();
+        fit.model = Model { lights: lights.clone(), ambient: Some([0.05; 3]), ..Model::default() };
+        let with_ambient = fit.fit_linear();
+        assert!(with_ambient < alone - 1e-3, "the ambient stands in for part of the bounce: {alone} alone, {with_ambient} with it");
+        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
+        let mut reports = Vec::new();
+        decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
+        let (b, a) = (&reports[0], reports.last().unwrap());
+        assert_eq!((b.term.as_str(), a.term.as_str()), ("bounce", "ambient"));
+        assert!((b.rel_error_without - alone).abs() < 1e-9, "the bounce weighed against {} (the lights alone: {alone}; with the ambient: {with_ambient})", b.rel_error_without);
+        assert!(b.kept && !a.kept, "bounce kept {}, ambient kept {}", b.kept, a.kept);
+        assert_eq!((fit.model.bounce.is_some(), fit.model.ambient), (true, None));
+        assert!(fit.eval().rel_error < 0.01, "{}", fit.eval().rel_error);
     }
 
     use super::light_names;
