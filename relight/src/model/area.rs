@@ -225,7 +225,7 @@ mod tests {
     fn subdivision_cuts_to_the_limit_and_keeps_the_area() {
         let w = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, 3.0), Vec3::new(5.0, 0.0, 0.0)];
         let mut out = Vec::new();
-        cut(&w, 1.0, 0.0, &mut usize::MAX, &mut out);
+        cut(&w, 1.0, 0.0, &mut { usize::MAX }, &mut out);
         assert!(out.len() > 10);
         for p in &out {
             let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
@@ -245,7 +245,7 @@ mod tests {
     fn an_absurd_winding_stops_at_the_depth_cap() {
         let w = [Vec3::ZERO, Vec3::new(1e7, 0.0, 0.0), Vec3::new(0.0, 0.0, 1e7)];
         let mut out = Vec::new();
-        cut(&w, 1.0, 0.01, &mut usize::MAX, &mut out);
+        cut(&w, 1.0, 0.01, &mut { usize::MAX }, &mut out);
         assert!(out.len() <= 1 << MAX_DEPTH && out.len() > 1000, "{} pieces", out.len());
         let total: f64 = out.iter().map(|p| polygon_area(p) as f64).sum();
         assert!((total / polygon_area(&w) as f64 - 1.0).abs() < 1e-3, "{total}");
@@ -269,12 +269,12 @@ mod tests {
     fn cuts_follow_quakes_axes() {
         let w = [Vec3::ZERO, Vec3::new(0.0, 4.0, 0.0), Vec3::new(0.0, 0.0, 4.0)];
         let mut out = Vec::new();
-        cut(&w, 3.0, 0.01, &mut usize::MAX, &mut out);
+        cut(&w, 3.0, 0.01, &mut { usize::MAX }, &mut out);
         assert!(out.len() >= 2);
         assert!(out[0].iter().all(|p| p.z >= 2.0 - 1e-5), "the first piece is the front of the cut at z = 2: {:?}", out[0]);
         // An extent equal to the limit is not cut (q3map2 compares in units, `>`).
         let mut whole = Vec::new();
-        cut(&[Vec3::ZERO, Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 3.0)], 3.0, 0.01, &mut usize::MAX, &mut whole);
+        cut(&[Vec3::ZERO, Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 3.0)], 3.0, 0.01, &mut { usize::MAX }, &mut whole);
         assert_eq!(whole.len(), 1);
     }
 
