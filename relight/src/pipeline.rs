@@ -93,6 +93,19 @@ pub enum Optional {
 /// Rows of the subsample on which `--init auto` places lights (every k-th row).
 pub const AUTO_SAMPLE_ROWS: usize = 20_000;
 
+/// The least a light must lower the placement's error (relative, on its subsample) to
+/// be added. The placement proposes and pruning decides (a light stays where removing
+/// it raises the error on every row by 0.002), so it proposes below that: at 0.001 it
+/// stopped on maps whose light comes from many small sources, where each further light
+/// gained 0.0003-0.001 on the subsample. Measured on 2026-11-27 (fourth session, 2-core
+/// machine, default relights) at 0.001 / 0.0003 / 0.0001: oacmpdm1 0.2192 (1 light) /
+/// 0.1922 (56) / 0.1947 (54); oacmpdm2 0.1957 (24) / 0.1678 (47) / 0.1563 (61);
+/// oacmpdm3 0.2563 (62) / 0.2577 (61) / 0.2577 (61); oacmpdm4 0.1290 (56) / 0.1220 (57)
+/// / 0.1220 (57); oacmpctf1 0.0871 (16) / 0.0820 (20) / 0.0790 (34); oa_dm1 0.2763 (59)
+/// / 0.2818 (56) / 0.2818 (56), where the placement reaches `--max-lights` either way
+/// and only its last lights differ.
+pub const PLACEMENT_MIN_GAIN: f64 = 0.0003;
+
 /// An optional term stays in the model with `auto` only when it lowers the relative error
 /// by at least this much (absolute).
 pub const TERM_GAIN: f64 = 0.005;
@@ -806,7 +819,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             // Locked input lights stay (the user's decision); the rest is placed anew.
             let keep: Vec<&(Light, bool, usize)> = input_lights.iter().filter(|x| x.1).collect();
             let with = Model { lights: keep.iter().map(|x| x.0).collect(), gathered: bases.gathered.as_ref().map(|_| [0.5; 3]), bounce: None, filter: false, ..start.clone() };
-            let (placed, stats) = init::auto(&scene.mesh, &rows, &bases, &bvh, lo, hi, &with, &vec![true; keep.len()], opts.max_lights, 0.001, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
+            let (placed, stats) = init::auto(&scene.mesh, &rows, &bases, &bvh, lo, hi, &with, &vec![true; keep.len()], opts.max_lights, PLACEMENT_MIN_GAIN, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
             auto_stats = Some(stats);
             // The placement's fit of the declared emitters is a better start than their
             // declared values.
