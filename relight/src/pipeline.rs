@@ -1637,14 +1637,18 @@ mod tests {
         assert_eq!((p.surfaces, p.sky), (Optional::On, Optional::On));
     }
 
-    /// The phases can leave the bounce's factor near zero (the ambient standing in for it);
-    /// the decision then tries it at q3map2's default factor too, and keeps it where the data was
-    /// bounced. Tried only at the entry's factor, the bounce was left out.
-    #[test]
-    fn a_bounce_the_phases_turned_down_is_decided_at_full_strength_too() {
-        use super::{decide_terms, Optional, Options, TermPlan};
-        use crate::backend::Cpu;
-        use crate::fit::Fitter;
+    /// A room whose data is two point lights and three passes of their bounce (the
+    /// bases' chain), 8-bit: the scene of the term decisions' tests.
+    struct BouncedRoom {
+        rows: crate::rows::Rows,
+        bases: crate::model::Bases,
+        bvh: crate::trace::bvh::Bvh,
+        lo: glam::Vec3,
+        hi: glam::Vec3,
+        truth: crate::model::Model,
+    }
+
+    fn bounced_room() -> BouncedRoom {
         use crate::model::{Light, Model};
         use glam::Vec3;
         let (mesh, mut rows) = crate::testutil::room(6);
@@ -1652,13 +1656,33 @@ mod tests {
         let bvh = crate::trace::bvh::Bvh::build(&mesh);
         let (lo, hi) = mesh.bounds();
         let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
-        let truth = Model { lights: lights.clone(), bounce: Some([1.0; 3]), ..Model::default() };
+        let truth = Model { lights, bounce: Some([1.0; 3]), ..Model::default() };
         crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 1e-3);
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
-        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        BouncedRoom { rows, bases, bvh, lo, hi, truth }
+    }
+
+    /// Only the bounce (and the ambient) undecided, three passes.
+    fn bounce_plan() -> super::TermPlan {
+        use super::Optional;
+        super::TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false }
+    }
+
+    /// The phases can leave the bounce's factor near zero (the ambient standing in for it);
+    /// the decision then tries it at q3map2's default factor too, and keeps it where the data was
+    /// bounced. Tried only at the entry's factor, the bounce was left out.
+    #[test]
+    fn a_bounce_the_phases_turned_down_is_decided_at_full_strength_too() {
+        use super::{decide_terms, Options};
+        use crate::backend::Cpu;
+        use crate::fit::Fitter;
+        use crate::model::Model;
+        let r = bounced_room();
+        let truth = &r.truth;
+        let mut cpu = Cpu { rows: &r.rows, bvh: &r.bvh };
+        let mut fit = Fitter::new(&r.rows, &r.bases, &r.bvh, &mut cpu, r.lo, r.hi);
         fit.locked = vec![false; 2];
         fit.model = Model { bounce: Some([4e-6; 3]), ..truth.clone() };
-        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
+        let plan = bounce_plan();
         let mut reports = Vec::new();
         decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
         let b = &reports[0];
@@ -1675,27 +1699,21 @@ mod tests {
     /// then left out.
     #[test]
     fn terms_are_weighed_without_the_ambient_and_the_ambient_last() {
-        use super::{decide_terms, Optional, Options, TermPlan};
+        use super::{decide_terms, Options};
         use crate::backend::Cpu;
         use crate::fit::Fitter;
-        use crate::model::{Light, Model};
-        use glam::Vec3;
-        let (mesh, mut rows) = crate::testutil::room(6);
-        let bases = crate::testutil::chain_bases(rows.len(), 3);
-        let bvh = crate::trace::bvh::Bvh::build(&mesh);
-        let (lo, hi) = mesh.bounds();
-        let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
-        let truth = Model { lights: lights.clone(), bounce: Some([1.0; 3]), ..Model::default() };
-        crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 1e-3);
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
-        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        use crate::model::Model;
+        let r = bounced_room();
+        let lights = r.truth.lights.clone();
+        let mut cpu = Cpu { rows: &r.rows, bvh: &r.bvh };
+        let mut fit = Fitter::new(&r.rows, &r.bases, &r.bvh, &mut cpu, r.lo, r.hi);
         fit.locked = vec![false; 2];
         fit.model = Model { lights: lights.clone(), ..Model::default() };
         let alone = fit.fit_linear();
         fit.model = Model { lights: lights.clone(), ambient: Some([0.05; 3]), ..Model::default() };
         let with_ambient = fit.fit_linear();
         assert!(with_ambient < alone - 1e-3, "the ambient stands in for part of the bounce: {alone} alone, {with_ambient} with it");
-        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
+        let plan = bounce_plan();
         let mut reports = Vec::new();
         decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
         let (b, a) = (&reports[0], reports.last().unwrap());
