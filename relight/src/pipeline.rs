@@ -94,8 +94,9 @@ pub enum Optional {
 pub const AUTO_SAMPLE_ROWS: usize = 20_000;
 
 /// The least a light must lower the placement's error (relative, on its subsample) to
-/// be added. The placement proposes and pruning decides (a light stays where removing
-/// it raises the error on every row by 0.002), so it proposes below that: at 0.001 it
+/// be added. The placement proposes and pruning decides (over all rows it removes the
+/// lights whose removal raises the error by less than 0.002, [`crate::fit`]'s `prune`),
+/// so it proposes below that: at 0.001 it
 /// stopped on maps whose light comes from many small sources, where each further light
 /// gained 0.0003-0.001 on the subsample. Measured on 2026-11-27 (fourth session, 2-core
 /// machine, default relights) at 0.001 / 0.0003 / 0.0001: oacmpdm1 0.2192 (1 light) /
