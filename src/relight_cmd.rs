@@ -65,10 +65,10 @@ pub struct RelightArgs {
     #[arg(long = "tracing-bounces", default_value_t = 1)]
     pub tracing_bounces: usize,
     /// Most lights `auto` places (it stops earlier when a light no longer lowers the error
-    /// by 0.0003 on its subsample). Measured: 32 was binding on oa_dm1 (0.39, 55 s; with
-    /// 64: 40 lights, 0.36, 42 s) and oacmpdm4 (0.26, 6 of its 10 strongest sources found; with room: 43
-    /// lights, 0.24, 8 of 10).
-    #[arg(long = "max-lights", default_value_t = 64)]
+    /// by 0.0003 on its subsample; pruning then removes the lights not worth their cost).
+    /// Measured (2-core machine): 64 was binding on oa_dm1 (0.28, 18 s; with 128: 77
+    /// lights, 0.24, 20 s), oacmpdm1 and oacmpdm3 (0.26 -> 0.19 with 120 lights).
+    #[arg(long = "max-lights", default_value_t = 128)]
     pub max_lights: usize,
     /// Caps every phase's iterations.
     #[arg(long = "max-iterations")]

@@ -321,6 +321,75 @@ impl<'a> Fitter<'a> {
         (total, grads)
     }
 
+    /// [`Fitter::run_phase`] moving only the lights `js` (with the model's terms), the other
+    /// lights held as they are. Where the model's radiance is the sum of its lights' (no
+    /// filter, bounce or minlight floor across them: a placement's subsample), the held
+    /// lights' radiance is taken out of the data ([`Rows::less`]) and the phase runs on
+    /// the lights `js` alone, so that an evaluation, its gradient and its re-traces cost
+    /// those lights only; the objective and the error are the whole model's all the same.
+    /// Otherwise the held lights are locked for the phase (the same fit, at the whole
+    /// model's cost).
+    pub fn run_phase_moving(&mut self, name: &str, phase: Phase, js: &[usize]) -> PhaseSummary {
+        let n = self.model.lights.len();
+        let moving: Vec<bool> = (0..n).map(|j| js.contains(&j)).collect();
+        let chain_is_linear = self.model.minlight.is_none() && (!self.model.filter || self.bases.filter.is_none()) && (self.model.bounce.is_none() || self.bases.bounce.is_none());
+        self.refresh_visibility();
+        if !chain_is_linear || self.failure.is_some() {
+            let (keep, before) = (self.locked.clone(), self.model.lights.clone());
+            self.locked.iter_mut().zip(&moving).for_each(|(l, &m)| *l = *l || !m);
+            let s = self.run_phase(name, phase);
+            self.locked = keep;
+            // Masked out, the held lights moved by the parameters' rounding only: as they were.
+            for (j, l) in before.into_iter().enumerate().filter(|&(j, _)| !moving[j]) {
+                self.model.lights[j] = l;
+            }
+            return s;
+        }
+        let js: Vec<usize> = (0..n).filter(|&j| moving[j]).collect();
+        let held: Vec<usize> = (0..n).filter(|&j| !moving[j]).collect();
+        let held_lights: Vec<Light> = held.iter().map(|&j| self.model.lights[j]).collect();
+        let e = if held.is_empty() {
+            vec![[0.0f32; 3]; self.rows.len()]
+        } else {
+            match self.backend.irradiance(&self.vis.select(&held), &held_lights) {
+                Ok(e) => e,
+                Err(err) => {
+                    self.failure = Some(err);
+                    return self.run_phase(name, phase);
+                }
+            }
+        };
+        // The held lights' radiance, through the dirt as in `model::forward`.
+        let dirt = if self.model.dirt { self.bases.dirt.as_deref() } else { None };
+        let rows = self.rows;
+        let x_held: Vec<[f64; 3]> = (0..rows.len()).map(|i| [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64) * e[i][c] as f64)).collect();
+        let left = rows.less(&x_held);
+        let part = Model { lights: js.iter().map(|&j| self.model.lights[j]).collect(), ..self.model.clone() };
+        let part_locked: Vec<bool> = js.iter().map(|&j| self.locked[j]).collect();
+        let part_vis = self.vis.select(&js);
+        let phase_index = self.phase_index;
+        let (model, vis, history, summary, trace_s, phase_index) = self.on_rows(&left, |t| {
+            t.model = part;
+            t.locked = part_locked;
+            t.vis = part_vis;
+            t.phase_index = phase_index;
+            let s = t.run_phase(name, phase);
+            (std::mem::take(&mut t.model), std::mem::take(&mut t.vis), std::mem::take(&mut t.history), s, t.trace_s, t.phase_index)
+        });
+        let mut lights = std::mem::take(&mut self.model.lights);
+        for (&j, l) in js.iter().zip(&model.lights) {
+            lights[j] = *l;
+        }
+        self.model = Model { lights, ..model };
+        self.vis.put_back(&js, vis);
+        // The records count the whole model's lights, not the part's.
+        self.history.extend(history.into_iter().map(|r| IterRecord { lights: n, ..r }));
+        self.trace_s += trace_s;
+        self.phase_index = phase_index;
+        self.phases.push(summary.clone());
+        summary
+    }
+
     /// Runs one phase; returns its summary (also appended to `phases`).
     pub fn run_phase(&mut self, name: &str, phase: Phase) -> PhaseSummary {
         let t0 = Instant::now();
@@ -398,5 +467,77 @@ impl<'a> Fitter<'a> {
         };
         self.phases.push(s.clone());
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::Cpu;
+    use crate::model::Bases;
+    use crate::testutil::{data_from_model, room};
+
+    /// A room lit by four lights and an ambient through dirt, its data another four
+    /// lights' radiance with some channels censored, and a fitter over it.
+    fn four_lights() -> (crate::scene::Mesh, Rows, Bases, Model) {
+        let (mesh, mut rows) = room(8);
+        let n = rows.len();
+        let bases = Bases { dirt: Some((0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect()), ..Bases::default() };
+        let at = |x: f32, y: f32, z: f32, i: f32| Light::point(Vec3::new(x, y, z), [i, 0.8 * i, 0.6 * i]);
+        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(3.2, 1.7, 0.8, 3.0), at(1.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 2.5, 5.0)], dirt: true, ambient: Some([0.05; 3]), ..Model::default() };
+        let bvh = Bvh::build(&mesh);
+        data_from_model(&mut rows, &bases, &bvh, &truth, 0.01);
+        for i in (0..n).step_by(7) {
+            rows.lower[i] = rows.lo[i];
+            rows.weight[i] = [0.0; 3];
+        }
+        rows.finish();
+        let start = Model { lights: vec![at(0.9, 1.8, 0.7, 3.0), at(3.0, 1.6, 1.0, 3.0), at(1.3, 0.8, 2.2, 3.0), at(3.0, 1.8, 2.3, 3.0)], ambient: Some([0.08; 3]), ..truth };
+        (mesh, rows, bases, start)
+    }
+
+    /// A phase that moves two of four lights sees the whole model's objective (its start
+    /// is the whole model's error, to rounding), leaves the other two exactly as they
+    /// were, ends no worse than it began, and leaves the visibility cache as a re-trace
+    /// would (the state's error afterwards is the phase's last).
+    #[test]
+    fn a_phase_moving_some_lights_fits_the_whole_objective_and_holds_the_rest() {
+        let (mesh, rows, bases, start) = four_lights();
+        let bvh = Bvh::build(&mesh);
+        let (lo, hi) = mesh.bounds();
+        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        fit.model = start.clone();
+        fit.locked = vec![false; 4];
+        let whole = fit.eval().rel_error;
+        let lbfgs = |its| Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: its };
+        let s0 = fit.run_phase_moving("none", lbfgs(0), &[1, 3]);
+        assert!((s0.rel_error_before - whole).abs() <= 1e-6 * whole, "the part's start {} is not the whole model's {whole}", s0.rel_error_before);
+        let s = fit.run_phase_moving("two", lbfgs(20), &[1, 3]);
+        assert!(s.rel_error_after < whole - 1e-3, "the phase did not fit: {whole} -> {}", s.rel_error_after);
+        for j in [0, 2] {
+            assert_eq!(fit.model.lights[j], start.lights[j], "held light {j} changed");
+        }
+        for j in [1, 3] {
+            assert!(fit.model.lights[j].pos.distance(start.lights[j].pos) > 1e-3, "light {j} did not move");
+        }
+        let after = fit.eval().rel_error;
+        assert!((after - s.rel_error_after).abs() <= 1e-6 * after, "the state's error {after} is not the phase's last {}", s.rel_error_after);
+        assert_eq!(fit.vis.bits.len(), 4);
+        assert!(!fit.history.is_empty() && fit.history.iter().all(|r| r.lights == 4), "the history counts the whole model's lights");
+        drop(fit);
+
+        // With a minlight floor the radiance is not a sum of parts: the held lights are
+        // locked instead, with the same promises.
+        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        fit.model = Model { minlight: Some([0.02; 3]), ..start.clone() };
+        fit.locked = vec![false; 4];
+        let whole = fit.eval().rel_error;
+        let s = fit.run_phase_moving("locked", lbfgs(20), &[1, 3]);
+        assert!(s.rel_error_before == whole && s.rel_error_after < whole - 1e-3, "{whole}: {} -> {}", s.rel_error_before, s.rel_error_after);
+        for j in [0, 2] {
+            assert_eq!(fit.model.lights[j], start.lights[j], "held light {j} changed (locked)");
+        }
+        assert_eq!(fit.locked, vec![false; 4], "the locks are given back");
     }
 }

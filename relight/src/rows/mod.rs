@@ -302,6 +302,18 @@ impl Rows {
     /// A subset of at most about `max` rows: every `stride`-th one, starting at
     /// `seed % stride` (areas scaled so sums stay comparable). Returns the subset and the
     /// indices it took.
+    /// The rows with a known part `x` of the model's radiance taken out of the data: what
+    /// is left for the rest of the model to explain. Every row's interval and lower bound
+    /// move down by `x`; the error's denominator stays the whole data's. So the objective,
+    /// its gradient and the relative error of a partial model on these rows are the whole
+    /// model's, as long as the model's radiance is the sum of the parts (no minlight
+    /// floor across them).
+    pub fn less(&self, x: &[[f64; 3]]) -> Rows {
+        debug_assert_eq!(x.len(), self.len());
+        let shift = |v: &[[f32; 3]]| -> Vec<[f32; 3]> { v.iter().zip(x).map(|(v, x)| [0, 1, 2].map(|c| (v[c] as f64 - x[c]) as f32)).collect() };
+        Rows { lo: shift(&self.lo), hi: shift(&self.hi), lower: shift(&self.lower), ..self.clone() }
+    }
+
     pub fn subsample(&self, max: usize, seed: u64) -> (Rows, Vec<usize>) {
         let stride = self.len().div_ceil(max.max(1)).max(1);
         let take: Vec<usize> = if stride == 1 { (0..self.len()).collect() } else { ((seed % stride as u64) as usize..self.len()).step_by(stride).collect() };

@@ -115,6 +115,29 @@ impl Visibility {
         Ok(stale.len())
     }
 
+    /// The cache of the lights `js` only, in that order (the sun's bits with them).
+    pub fn select(&self, js: &[usize]) -> Visibility {
+        Visibility {
+            bits: js.iter().map(|&j| self.bits[j].clone()).collect(),
+            traced_at: js.iter().map(|&j| self.traced_at[j]).collect(),
+            traced_reach: js.iter().map(|&j| self.traced_reach[j]).collect(),
+            sun: self.sun.clone(),
+            rays: 0,
+        }
+    }
+
+    /// Puts back what [`Visibility::select`] took out as `part` (its lights `js`, the sun),
+    /// with the rays it traced since.
+    pub fn put_back(&mut self, js: &[usize], part: Visibility) {
+        for ((&j, bits), (at, reach)) in js.iter().zip(part.bits).zip(part.traced_at.into_iter().zip(part.traced_reach)) {
+            self.bits[j] = bits;
+            self.traced_at[j] = at;
+            self.traced_reach[j] = reach;
+        }
+        self.sun = part.sun;
+        self.rays += part.rays;
+    }
+
     /// Replaces the cache of light `j` (used when lights are reordered or removed).
     pub fn remove(&mut self, j: usize) {
         self.bits.remove(j);
