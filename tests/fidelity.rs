@@ -368,12 +368,13 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// 0.2577 (61, 1/10), 0.1220 (57, 10/10), 0.0820 (20); on 2026-11-27 (fifth), with each
 /// placement round past 8 lights refitting only the new light's neighbours and room for
 /// 128 lights: 0.1692 (91, 5/10), 0.1669 (49, 1/10), 0.1894 (120, 1/10), 0.1286 (55,
-/// 10/10), 0.0823 (19).
+/// 10/10), 0.0823 (19); then with ten failed rounds before the placement stops (three
+/// before): 0.1646 (95, 5/10), 0.1534 (59, 1/10), the others the same.
 /// oacmpdm2's default is path dependent: its
 /// placement subsample has three offsets (`--seed` 1, 2, 3: 0.2313 with 12 lights, 0.1907
 /// with 28, 0.1966 with 24; on 2026-11-27 (fifth), refitted by overlap from the first
-/// light, 0.1575 with 53, 0.1723 with 42, 0.2214 with 21), so its bound leaves room for a
-/// change of path.
+/// light, 0.1575 with 53, 0.1723 with 42, 0.2214 with 21; with ten failed rounds 0.1534
+/// with 59, 0.1781 with 42, 0.1253 with 63), so its bound leaves room for a change of path.
 const RECOVERY: [(&str, f64, usize); 5] = [
     ("oacmpdm1", 0.21, 4),
     ("oacmpdm2", 0.21, 0),
