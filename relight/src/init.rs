@@ -8,8 +8,9 @@
 //!   faces: never inside a wall or outside the map). The candidate that removes most of
 //!   the residual (exact one-light least squares) is added, it and the lights it shares
 //!   rows with are refitted with a short L-BFGS (every light while there are few,
-//!   `neighbours`) and every intensity exactly; if that gains less than `min_gain`, the next-best candidates over other
-//!   rows are tried (up to [`TRIES_PER_ROUND`] rows a round). Rows whose candidates failed
+//!   `neighbours`) and every intensity exactly; if that gains less than `min_gain`, the
+//!   next-best candidates over other rows are tried (up to [`TRIES_PER_ROUND`] rows a
+//!   round). Rows whose candidates failed
 //!   are not picked again, so a round that adds nothing is followed by one that looks
 //!   elsewhere; adding stops after [`FAILED_ROUNDS`] such rounds in a row, or at
 //!   `max_lights`.
