@@ -323,7 +323,7 @@ impl<'a> Fitter<'a> {
 
     /// [`Fitter::run_phase`] moving only the lights `js` (with the model's terms), the other
     /// lights held as they are. Where the model's radiance is the sum of its lights' (no
-    /// filter, bounce or minlight floor across them: a placement's subsample), the held
+    /// minlight floor across them, no bounce whose scale the phase moves), the held
     /// lights' radiance is taken out of the data ([`Rows::less`]) and the phase runs on
     /// the lights `js` alone, so that an evaluation, its gradient and its re-traces cost
     /// those lights only; the objective and the error are the whole model's all the same.
@@ -332,7 +332,9 @@ impl<'a> Fitter<'a> {
     pub fn run_phase_moving(&mut self, name: &str, phase: Phase, js: &[usize]) -> PhaseSummary {
         let n = self.model.lights.len();
         let moving: Vec<bool> = (0..n).map(|j| js.contains(&j)).collect();
-        let chain_is_linear = self.model.minlight.is_none() && (!self.model.filter || self.bases.filter.is_none()) && (self.model.bounce.is_none() || self.bases.bounce.is_none());
+        // The chain (filter, dirt) is linear in the lights' irradiance; the bounce too, but
+        // its scale may move in the phase, and the held lights' bounced light with it.
+        let chain_is_linear = self.model.minlight.is_none() && (self.model.bounce.is_none() || self.bases.bounce.is_none());
         self.refresh_visibility();
         if !chain_is_linear || self.failure.is_some() {
             let (keep, before) = (self.locked.clone(), self.model.lights.clone());
@@ -359,11 +361,9 @@ impl<'a> Fitter<'a> {
                 }
             }
         };
-        // The held lights' radiance, through the dirt as in `model::forward`.
-        let dirt = if self.model.dirt { self.bases.dirt.as_deref() } else { None };
-        let rows = self.rows;
-        let x_held: Vec<[f64; 3]> = (0..rows.len()).map(|i| [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64) * e[i][c] as f64)).collect();
-        let left = rows.less(&x_held);
+        // The held lights' radiance: their irradiance through the model's chain alone.
+        let x_held = model::forward(&self.model.chain_only(), self.rows, self.bases, &self.vis, &e).x;
+        let left = self.rows.less(&x_held);
         let part = Model { lights: js.iter().map(|&j| self.model.lights[j]).collect(), ..self.model.clone() };
         let part_locked: Vec<bool> = js.iter().map(|&j| self.locked[j]).collect();
         let part_vis = self.vis.select(&js);
@@ -477,14 +477,14 @@ mod tests {
     use crate::model::Bases;
     use crate::testutil::{data_from_model, room};
 
-    /// A room lit by four lights and an ambient through dirt, its data another four
-    /// lights' radiance with some channels censored, and a fitter over it.
+    /// A room lit by four lights and an ambient through dirt and a filter, its data another
+    /// four lights' radiance with some channels censored, and a fitter over it.
     fn four_lights() -> (crate::scene::Mesh, Rows, Bases, Model) {
         let (mesh, mut rows) = room(8);
         let n = rows.len();
-        let bases = Bases { dirt: Some((0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect()), ..Bases::default() };
+        let bases = Bases { dirt: Some((0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect()), filter: crate::testutil::chain_bases(n, 0).filter, ..Bases::default() };
         let at = |x: f32, y: f32, z: f32, i: f32| Light::point(Vec3::new(x, y, z), [i, 0.8 * i, 0.6 * i]);
-        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(3.2, 1.7, 0.8, 3.0), at(1.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 2.5, 5.0)], dirt: true, ambient: Some([0.05; 3]), ..Model::default() };
+        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(3.2, 1.7, 0.8, 3.0), at(1.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 2.5, 5.0)], dirt: true, filter: true, ambient: Some([0.05; 3]), ..Model::default() };
         let bvh = Bvh::build(&mesh);
         data_from_model(&mut rows, &bases, &bvh, &truth, 0.01);
         for i in (0..n).step_by(7) {
