@@ -10,10 +10,12 @@
 //!   rows with are refitted with a short L-BFGS (every light while there are few,
 //!   `neighbours`) and every intensity exactly; if that gains less than `min_gain`, the
 //!   next-best candidates over other rows are tried (up to [`TRIES_PER_ROUND`] rows a
-//!   round). Rows whose candidates failed
-//!   are not picked again, so a round that adds nothing is followed by one that looks
-//!   elsewhere; adding stops after [`FAILED_ROUNDS`] such rounds in a row, or at
-//!   `max_lights`.
+//!   round). Past the first lights a round first tries its best candidates whose light
+//!   falls on different rows together (`batch`, up to [`BATCH_LIGHTS`]): one refit and two
+//!   solves for several lights, kept when they gain `min_gain` each. Rows whose candidates
+//!   failed are not picked again, so a round that adds nothing is followed by one that
+//!   looks elsewhere; adding stops after [`FAILED_ROUNDS`] such rounds or
+//!   [`FAILED_TRIES`] failed tries in a row, or at `max_lights`.
 //! - `input`: the lights of the glTF (handled by the caller).
 
 use glam::Vec3;
@@ -101,11 +103,33 @@ pub struct AutoStats {
     pub added: usize,
     /// Candidates refitted that gained less than `min_gain` (their rows are not picked again).
     pub failed_tries: usize,
-    /// Relative error on the subsample after each addition.
+    /// Tries that added several lights at once ([`batch`]), and those that gained too
+    /// little (their round then tries the best candidates one at a time).
+    pub batches: usize,
+    pub failed_batches: usize,
+    /// Relative error on the subsample after each try that added lights (a batch counts once).
     pub errors: Vec<f64>,
+    /// Where the placement's wall time went, s (what does not scale with cores shows
+    /// here, next to the work that does).
+    pub time_s: AutoTimes,
     /// The placement's own iterations (on the subsample), for the report's curve.
     #[serde(skip)]
     pub history: Vec<crate::fit::IterRecord>,
+}
+
+/// The placement's wall time by step, s.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct AutoTimes {
+    /// The model's radiance on the subsample and the rows' order by shortfall.
+    pub residual: f64,
+    /// Candidate positions, their shadow rays and their one-light scores.
+    pub scoring: f64,
+    /// The exact linear solves around each try, and their re-traces.
+    pub linear: f64,
+    /// The short refits of the new light and its neighbours (re-traces included).
+    pub refit: f64,
+    /// Of `linear` and `refit`: re-tracing lights that moved.
+    pub trace: f64,
 }
 
 /// Rows whose best-scored candidate a round refits (best score first) before it ends
@@ -120,6 +144,15 @@ const TRIES_PER_ROUND: usize = 3;
 /// oacmpdm4, oacmpctf1 and the sample the same at all three (their placements end at the
 /// cap or where no row is left to try). Each failed round costs three short refits.
 const FAILED_ROUNDS: usize = 10;
+
+/// Failed tries in a row (over rounds) before the placement stops. Near its end a
+/// placement tried three rows a round for [`FAILED_ROUNDS`] rounds: on oa_dm1, 62 of its
+/// 151 tries came after its last light but one, 40% of its time. Measured with batches
+/// (2-core machine; error, lights, placement s; without the limit -> with it): oa_dm1
+/// 0.2329 (87) 15.3 s -> 0.2346 (86) 10.9 s, oacmpdm2 0.1265 (72) 27.9 s -> 0.1500 (57)
+/// 9.5 s, oacmpdm1 0.1676 (92) 20.5 -> 17.7 s, oacmpdm4 0.1312 (56) 4.6 s -> 0.1286 (56)
+/// 2.3 s; oacmpdm3 and oacmpctf1 the same error.
+const FAILED_TRIES: usize = 10;
 
 /// Greedy placement on a subsample of the rows. `model` is the model the lights join:
 /// its terms (sun, sky, surfaces, ambient, ...) and the lights kept from the input
@@ -138,7 +171,9 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     for (l, &k) in model.lights.iter().zip(locked) {
         fit.add_light(*l, k);
     }
-    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, failed_tries: 0, errors: Vec::new(), history: Vec::new() };
+    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, failed_tries: 0, batches: 0, failed_batches: 0, errors: Vec::new(), time_s: AutoTimes::default(), history: Vec::new() };
+    let clock = std::time::Instant::now;
+    let trace0 = fit.trace_s;
     let mut err = fit.fit_linear();
     if !err.is_finite() {
         err = 1.0;
@@ -152,7 +187,10 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     // every round).
     let mut failed: Vec<Vec3> = Vec::new();
     let mut strikes = 0;
+    // Tries that failed since the last light was added, over rounds.
+    let mut fails_in_row = 0;
     while fit.model.lights.len() < max_lights && !fit.out_of_time() {
+        let t = clock();
         let x = match crate::model::radiance(&fit.model, &sub, &sub_bases, &fit.vis, &mut Cpu { rows: &sub, bvh }) {
             Ok(x) => x,
             Err(_) => break,
@@ -165,6 +203,8 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             .filter(|(r, _)| *r > 0.0)
             .collect();
         order.sort_by(|a, b| b.0.total_cmp(&a.0));
+        stats.time_s.residual += t.elapsed().as_secs_f64();
+        let t = clock();
         let mut picked: Vec<usize> = Vec::new();
         for &(_, i) in &order {
             if picked.len() >= 16 {
@@ -189,6 +229,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             }
         }
         if cands.is_empty() {
+            stats.time_s.scoring += t.elapsed().as_secs_f64();
             break;
         }
         stats.candidates_tried += cands.len();
@@ -196,7 +237,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
         // candidate's light through the dirt factor; filter and bounce are not on the
         // subsample).
         let dirt = if fit.model.dirt { sub_bases.dirt.as_deref() } else { None };
-        let scored: Vec<(f64, Vec3, [f32; 3], usize)> = {
+        let scored: Vec<Scored> = {
             use rayon::prelude::*;
             // The same rows stay the most unexplained for several rounds, so the same
             // candidates come back (on oa_dm1 307 distinct of 3025): their shadow rays are
@@ -232,13 +273,35 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
         };
         let mut scored = scored;
         scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        stats.time_s.scoring += t.elapsed().as_secs_f64();
+        // Past the first lights, the best candidates whose light falls on different rows
+        // (and that promise about as much) are tried together: one refit and two solves
+        // for several lights ([`batch`]).
+        let mut added = false;
+        if fit.model.lights.len() >= REFIT_ALL_UP_TO && !fit.out_of_time() {
+            let members = batch(&sub, dirt, &visible, &scored, key, (max_lights - fit.model.lights.len()).min(BATCH_LIGHTS));
+            if members.len() > 1 {
+                let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
+                let news: Vec<Light> = members.iter().map(|&m| candidate_light(&scored[m])).collect();
+                let e = try_lights(&mut fit, &sub, dirt, &news, &mut stats.time_s);
+                if err - e >= min_gain * news.len() as f64 {
+                    stats.errors.push(e);
+                    stats.added += news.len();
+                    stats.batches += 1;
+                    err = e;
+                    added = true;
+                } else {
+                    (fit.model, fit.locked, fit.vis) = saved;
+                    stats.failed_batches += 1;
+                }
+            }
+        }
         // The best-scored candidate can fail once refitted (its one-light score ignores how
         // the others move); the next ones are tried, each over a different row (the
         // heights over one row tend to fail together).
-        let mut added = false;
         let mut tried_rows: Vec<usize> = Vec::new();
         for best in scored.iter() {
-            if tried_rows.len() >= TRIES_PER_ROUND {
+            if added || tried_rows.len() >= TRIES_PER_ROUND || fails_in_row >= FAILED_TRIES {
                 break;
             }
             if tried_rows.contains(&best.3) {
@@ -248,48 +311,141 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             if !(best.0 > 0.0) || fit.out_of_time() {
                 break;
             }
-            let floor = best.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
             let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
-            fit.add_light(Light::point(best.1, best.2.map(|c| c.max(floor).max(1e-9))), false);
-            // The solves without fit_linear's guard: this loop keeps the better state itself.
-            fit.refresh_visibility();
-            let e0 = fit.solve_linear();
-            let placed = (fit.model.clone(), fit.vis.clone());
-            // The short refinement moves the new light and the lights it shares rows with;
-            // the others are held (a refit of every light cost each round time in
-            // proportion to the lights placed so far).
-            let near = neighbours(&sub, dirt, &fit.vis, &fit.model.lights, fit.model.lights.len() - 1);
-            fit.run_phase_moving("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 }, &near);
-            fit.refresh_visibility();
-            let mut e = fit.solve_linear();
-            if !(e <= e0) {
-                // The short refinement made things worse (a light slid behind a wall): undo it.
-                (fit.model, fit.vis) = placed;
-                e = e0;
-            }
+            let e = try_lights(&mut fit, &sub, dirt, &[candidate_light(best)], &mut stats.time_s);
             if err - e < min_gain {
                 (fit.model, fit.locked, fit.vis) = saved;
                 failed.push(sub.pos[picked[best.3]]);
                 stats.failed_tries += 1;
+                fails_in_row += 1;
                 continue;
             }
             stats.errors.push(e);
             stats.added += 1;
             err = e;
             added = true;
-            break;
         }
         if added {
             strikes = 0;
+            fails_in_row = 0;
         } else {
             strikes += 1;
-            if strikes >= FAILED_ROUNDS {
+            if strikes >= FAILED_ROUNDS || fails_in_row >= FAILED_TRIES {
                 break;
             }
         }
     }
+    stats.time_s.trace = fit.trace_s - trace0;
     stats.history = std::mem::take(&mut fit.history);
     (fit.model.clone(), stats)
+}
+
+/// A scored candidate: (score, position, intensity per channel, index of its row in the
+/// round's picks).
+type Scored = (f64, Vec3, [f32; 3], usize);
+
+/// A candidate's light: its scored intensity, each channel at least a thousandth of the
+/// largest (a channel at zero would stay there under the multiplicative steps).
+fn candidate_light(c: &Scored) -> Light {
+    let floor = c.2.iter().copied().fold(0.0f32, f32::max) * 1e-3;
+    Light::point(c.1, c.2.map(|v| v.max(floor).max(1e-9)))
+}
+
+/// Adds `news`, solves every intensity exactly, refits the new lights and their
+/// neighbours briefly and solves again; keeps the refit only where it lowered the error.
+/// Returns the error after (the caller decides whether the lights stay).
+fn try_lights(fit: &mut Fitter, sub: &Rows, dirt: Option<&[f32]>, news: &[Light], times: &mut AutoTimes) -> f64 {
+    let clock = std::time::Instant::now;
+    for l in news {
+        fit.add_light(*l, false);
+    }
+    // The solves without fit_linear's guard: the placement keeps the better state itself.
+    let t = clock();
+    fit.refresh_visibility();
+    let e0 = fit.solve_linear();
+    let placed = (fit.model.clone(), fit.vis.clone());
+    times.linear += t.elapsed().as_secs_f64();
+    let t = clock();
+    // The short refinement moves the new lights and the lights they share rows with; the
+    // others are held (a refit of every light cost each round time in proportion to the
+    // lights placed so far).
+    let n = fit.model.lights.len();
+    let mut near: Vec<usize> = Vec::new();
+    for new in n - news.len()..n {
+        for j in neighbours(sub, dirt, &fit.vis, &fit.model.lights, new) {
+            if !near.contains(&j) {
+                near.push(j);
+            }
+        }
+    }
+    near.sort_unstable();
+    fit.run_phase_moving("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 }, &near);
+    times.refit += t.elapsed().as_secs_f64();
+    let t = clock();
+    fit.refresh_visibility();
+    let mut e = fit.solve_linear();
+    times.linear += t.elapsed().as_secs_f64();
+    if !(e <= e0) {
+        // The short refinement made things worse (a light slid behind a wall): undo it.
+        (fit.model, fit.vis) = placed;
+        e = e0;
+    }
+    e
+}
+
+/// Most lights one placement try adds ([`batch`]). Measured (2-core machine, with
+/// [`FAILED_TRIES`]; error, lights, placement s; one light a try -> 4 -> 8): oa_dm1 0.2363
+/// (81) 12.1 s -> 0.2346 (86) 10.9 s -> 0.2397 (80) 17.2 s; oacmpdm3 0.1894 (120) 17.6 s
+/// -> 0.1889 (120) 10.3 s -> 0.1931 (117) 9.4 s; oacmpdm1 0.1652 (93) 18.3 s -> 0.1676
+/// (92) 17.7 s -> 0.1655 (102) 20.2 s; oacmpdm2 0.1657 (51) -> 0.1500 (57); oacmpdm4
+/// 0.1286 either way. Where a batch fails, its round tries the candidates one at a time.
+const BATCH_LIGHTS: usize = 4;
+
+/// Least score, against the round's best, of a candidate that joins the best in a batch.
+const BATCH_SCORE: f64 = 0.5;
+
+/// Candidates (indices into `scored`, best first) that one try adds together: the best,
+/// then each next candidate over another row whose score is at least [`BATCH_SCORE`] of
+/// the best's and whose light overlaps none of those taken (the cosine of their radiance
+/// on the rows, as [`neighbours`] measures it, under [`NEIGHBOUR_OVERLAP`]): lights that
+/// share no row add their gains, so a batch costs one refit where it would cost one each.
+fn batch(sub: &Rows, dirt: Option<&[f32]>, visible: &std::collections::HashMap<[u32; 3], Vec<u32>>, scored: &[Scored], key: impl Fn(Vec3) -> [u32; 3], most: usize) -> Vec<usize> {
+    let Some(best) = scored.first().filter(|b| b.0 > 0.0) else {
+        return Vec::new();
+    };
+    let radiance = |c: &Scored| -> (Vec<f64>, f64) {
+        let bits = &visible[&key(c.1)];
+        let l = candidate_light(c);
+        let mut v = vec![0.0f64; sub.len()];
+        for (i, vi) in v.iter_mut().enumerate() {
+            if bits[i >> 5] >> (i & 31) & 1 == 1 {
+                let a: f64 = (0..3).map(|ch| sub.albedo[i][ch] as f64 * l.rgb[ch] as f64).sum();
+                *vi = lights::g(sub, i, &l) as f64 * a * dirt.map_or(1.0, |d| d[i] as f64) * (sub.area[i] as f64).sqrt();
+            }
+        }
+        let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        (v, norm)
+    };
+    let mut taken: Vec<(usize, Vec<f64>, f64)> = Vec::new();
+    let (v, norm) = radiance(best);
+    taken.push((0, v, norm));
+    for (m, c) in scored.iter().enumerate().skip(1) {
+        if taken.len() >= most || c.0 < BATCH_SCORE * best.0 {
+            break;
+        }
+        if taken.iter().any(|t| scored[t.0].3 == c.3) {
+            continue;
+        }
+        let (v, norm) = radiance(c);
+        let apart = taken.iter().all(|(_, w, wn)| {
+            let cross: f64 = v.iter().zip(w).map(|(a, b)| a * b).sum();
+            !(norm > 0.0 && *wn > 0.0) || cross / (norm * wn) < NEIGHBOUR_OVERLAP
+        });
+        if apart && norm > 0.0 {
+            taken.push((m, v, norm));
+        }
+    }
+    taken.into_iter().map(|t| t.0).collect()
 }
 
 /// Most lights a placement round refits beside the new one ([`neighbours`]).
@@ -449,4 +605,47 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
     let w = sun_direction(t, p).0;
     let rgb = score(w).1;
     Some((Sun { to_sun: w, rgb: rgb.map(|v| v.max(1e-6)) }, best_s))
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::{batch, Scored, BATCH_LIGHTS};
+    use crate::testutil::room;
+
+    /// A batch takes the best candidate, then those over other rows that promise at least
+    /// half as much and whose light falls on rows none taken reaches; no more than asked.
+    #[test]
+    fn a_batch_takes_strong_candidates_whose_light_falls_apart() {
+        let (_, rows) = room(8);
+        let n = rows.len();
+        let words = n.div_ceil(32);
+        // Which rows each candidate sees: the first half, the second half, or all.
+        let sees = |range: std::ops::Range<usize>| {
+            let mut bits = vec![0u32; words];
+            range.for_each(|i| bits[i >> 5] |= 1 << (i & 31));
+            bits
+        };
+        let at = |x: f32| Vec3::new(x, 1.2, 1.5);
+        let key = |p: Vec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+        let visible: std::collections::HashMap<[u32; 3], Vec<u32>> = [(at(0.5), sees(0..n / 2)), (at(1.0), sees(0..n)), (at(1.5), sees(n / 2..n)), (at(2.0), sees(n / 2..n)), (at(2.5), sees(0..n / 2))].into_iter().map(|(p, b)| (key(p), b)).collect();
+        let rgb = [1.0f32; 3];
+        // (score, position, intensity, row), best first.
+        let scored: Vec<Scored> = vec![
+            (10.0, at(0.5), rgb, 0), // the best: the first half
+            (9.0, at(1.0), rgb, 1),  // every row: overlaps the best
+            (8.0, at(1.5), rgb, 0),  // the second half, but over the best's row
+            (7.0, at(2.0), rgb, 2),  // the second half, another row: taken
+            (6.0, at(2.5), rgb, 3),  // the first half again: overlaps the best
+        ];
+        assert_eq!(batch(&rows, None, &visible, &scored, key, BATCH_LIGHTS), vec![0, 3]);
+        assert_eq!(batch(&rows, None, &visible, &scored, key, 1), vec![0], "no more than asked");
+        // A candidate under half the best's score stays out.
+        let weak: Vec<Scored> = scored.iter().map(|&c| if c.0 == 7.0 { (4.9, c.1, c.2, c.3) } else { c }).collect();
+        assert_eq!(batch(&rows, None, &visible, &weak, key, BATCH_LIGHTS), vec![0]);
+        // Nothing worth a light: no batch.
+        let none: Vec<Scored> = scored.iter().map(|&c| (0.0, c.1, c.2, c.3)).collect();
+        assert!(batch(&rows, None, &visible, &none, key, BATCH_LIGHTS).is_empty());
+    }
 }
