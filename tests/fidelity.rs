@@ -369,12 +369,17 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// placement round past 8 lights refitting only the new light's neighbours and room for
 /// 128 lights: 0.1692 (91, 5/10), 0.1669 (49, 1/10), 0.1894 (120, 1/10), 0.1286 (55,
 /// 10/10), 0.0823 (19); then with ten failed rounds before the placement stops (three
-/// before): 0.1646 (95, 5/10), 0.1534 (59, 1/10), the others the same.
+/// before): 0.1646 (95, 5/10), 0.1534 (59, 1/10), the others the same; on 2026-11-27
+/// (sixth), with up to four lights a placement try and ten failed tries in a row ending
+/// it: 0.1676 (92, 6/10), 0.1500 (57, 1/10), 0.1889 (120, 1/10), 0.1286 (56, 10/10),
+/// 0.0823 (19).
 /// oacmpdm2's default is path dependent: its
 /// placement subsample has three offsets (`--seed` 1, 2, 3: 0.2313 with 12 lights, 0.1907
 /// with 28, 0.1966 with 24; on 2026-11-27 (fifth), refitted by overlap from the first
 /// light, 0.1575 with 53, 0.1723 with 42, 0.2214 with 21; with ten failed rounds 0.1534
-/// with 59, 0.1781 with 42, 0.1253 with 63), so its bound leaves room for a change of path.
+/// with 59, 0.1781 with 42, 0.1253 with 63; on 2026-11-27 (sixth), several lights a try:
+/// 0.1500 with 57, 0.1814 with 40, 0.1404 with 62), so its bound leaves room for a change
+/// of path.
 const RECOVERY: [(&str, f64, usize); 5] = [
     ("oacmpdm1", 0.21, 4),
     ("oacmpdm2", 0.21, 0),
