@@ -419,8 +419,7 @@ fn batch(sub: &Rows, dirt: Option<&[f32]>, visible: &std::collections::HashMap<[
         let mut v = vec![0.0f64; sub.len()];
         for (i, vi) in v.iter_mut().enumerate() {
             if bits[i >> 5] >> (i & 31) & 1 == 1 {
-                let a: f64 = (0..3).map(|ch| sub.albedo[i][ch] as f64 * l.rgb[ch] as f64).sum();
-                *vi = lights::g(sub, i, &l) as f64 * a * dirt.map_or(1.0, |d| d[i] as f64) * (sub.area[i] as f64).sqrt();
+                *vi = overlap_radiance(sub, dirt, &l, i);
             }
         }
         let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -480,11 +479,7 @@ fn neighbours(sub: &Rows, dirt: Option<&[f32]>, vis: &visibility::Visibility, li
     if lights.len() <= REFIT_ALL_UP_TO {
         return (0..lights.len()).collect();
     }
-    let radiance = |j: usize, i: usize| -> f64 {
-        let l = &lights[j];
-        let a: f64 = (0..3).map(|c| sub.albedo[i][c] as f64 * l.rgb[c] as f64).sum();
-        lights::g(sub, i, l) as f64 * a * dirt.map_or(1.0, |d| d[i] as f64) * (sub.area[i] as f64).sqrt()
-    };
+    let radiance = |j: usize, i: usize| overlap_radiance(sub, dirt, &lights[j], i);
     let mut mine = vec![0.0f64; sub.len()];
     vis.for_each_visible(new, 0..sub.len(), |i| mine[i] = radiance(new, i));
     let own: f64 = mine.iter().map(|v| v * v).sum();
@@ -507,6 +502,15 @@ fn neighbours(sub: &Rows, dirt: Option<&[f32]>, vis: &visibility::Visibility, li
     let mut out: Vec<usize> = overlap.iter().take(NEIGHBOURS).map(|&(_, j)| j).collect();
     out.push(new);
     out
+}
+
+/// Light `l`'s radiance at row `i` as the overlaps between lights measure it
+/// ([`neighbours`], [`batch`]): through the dirt, channels summed, weighted by the square
+/// root of the row's area (so that a dot product of two is area-weighted). The caller
+/// knows the row sees the light.
+fn overlap_radiance(sub: &Rows, dirt: Option<&[f32]>, l: &Light, i: usize) -> f64 {
+    let a: f64 = (0..3).map(|c| sub.albedo[i][c] as f64 * l.rgb[c] as f64).sum();
+    lights::g(sub, i, l) as f64 * a * dirt.map_or(1.0, |d| d[i] as f64) * (sub.area[i] as f64).sqrt()
 }
 
 /// What the data asks of row `i`, channel `c` beyond the model's `x`, and the weight of
