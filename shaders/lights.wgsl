@@ -19,7 +19,8 @@ struct LightParams {
 }
 
 // A light as stored: lights[3j] = (position, 1 if a spot), lights[3j + 1] = (rgb,
-// radius_by_dist), lights[3j + 2] = (axis, 0).
+// radius_by_dist), lights[3j + 2] = (axis, the slot of its visibility bits in `vis`, a
+// whole number).
 struct Term {
     g: f32,
     dp: vec3<f32>,
@@ -32,7 +33,8 @@ fn zero_term() -> Term {
 }
 
 fn visible(j: u32, i: u32) -> bool {
-    return ((vis[j * lp.words + (i >> 5u)] >> (i & 31u)) & 1u) == 1u;
+    let slot = u32(lights[3u * j + 2u].w);
+    return ((vis[slot * lp.words + (i >> 5u)] >> (i & 31u)) & 1u) == 1u;
 }
 
 fn light_term(x: vec3<f32>, n: vec3<f32>, j: u32) -> Term {

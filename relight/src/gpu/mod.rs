@@ -330,10 +330,19 @@ pub struct GpuBackend {
     rows: wgpu::Buffer,
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
-    /// Visibility uploaded per light slot, and the light position it was traced at.
+    /// The device's visibility buffer: `vis_capacity` slots of `words` words each.
     vis: Option<wgpu::Buffer>,
     vis_capacity: usize,
-    uploaded: Vec<Option<Vec3>>,
+    /// Which slot holds the bits traced from a position to a reach (`vis_key`). The bits
+    /// are a function of the two (the rows and the BVH are this backend's), so a light
+    /// finds its bits wherever its index went: a pruning try removes lights, renumbering
+    /// those after them, and undoes it, and neither uploads anything again.
+    slots: std::collections::HashMap<[u32; 4], u32>,
+}
+
+/// The key of a light's visibility bits: the position and reach they were traced for.
+fn vis_key(at: Vec3, reach: f32) -> [u32; 4] {
+    [at.x.to_bits(), at.y.to_bits(), at.z.to_bits(), reach.to_bits()]
 }
 
 /// A bind group of whole buffers, bound in order: binding `i` is `buffers[i]`.
@@ -376,7 +385,7 @@ impl GpuBackend {
             sampling: rows.sampling,
             vis: None,
             vis_capacity: 0,
-            uploaded: Vec::new(),
+            slots: std::collections::HashMap::new(),
             ctx,
         })
     }
@@ -410,54 +419,75 @@ impl GpuBackend {
         Ok(out)
     }
 
-    /// Uploads the visibility of lights re-traced since the last call; returns the buffer.
-    fn upload_visibility(&mut self, vis: &Visibility, k: usize) -> Result<()> {
+    /// Brings the visibility of the `k` lights onto the device: each light's bits in a
+    /// slot of their own, uploaded when no slot holds them yet. Returns each light's slot.
+    /// Slots no light needs now are reused when the buffer is full; it grows (to twice the
+    /// lights, within the adapter's binding limit) when the lights alone fill it.
+    fn upload_visibility(&mut self, vis: &Visibility, k: usize) -> Result<Vec<u32>> {
         let d = &self.ctx.device;
         let wbytes = self.words as usize * 4;
-        if self.vis.is_none() || self.vis_capacity < k.max(1) {
-            let cap = k.max(1).next_power_of_two();
-            let size = (cap * wbytes) as u64;
-            if size > self.ctx.max_binding() as u64 {
+        let keys: Vec<[u32; 4]> = (0..k).map(|j| vis_key(vis.traced_at[j], vis.traced_reach[j])).collect();
+        let needed: std::collections::HashSet<[u32; 4]> = keys.iter().copied().collect();
+        let missing = needed.iter().filter(|key| !self.slots.contains_key(*key)).count();
+        if self.vis.is_none() || self.slots.len() + missing > self.vis_capacity {
+            self.slots.retain(|key, _| needed.contains(key));
+        }
+        if self.vis.is_none() || needed.len() > self.vis_capacity {
+            let max = self.ctx.max_binding() / wbytes.max(1);
+            if needed.len().max(1) > max {
                 return Err(Error::Gpu(format!("the visibility of {k} lights exceeds the adapter's storage binding limit")));
             }
-            self.vis = Some(d.create_buffer(&wgpu::BufferDescriptor { label: Some("vis"), size, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false }));
+            let cap = (2 * needed.len()).max(1).next_power_of_two().min(max);
+            self.vis = Some(d.create_buffer(&wgpu::BufferDescriptor { label: Some("vis"), size: (cap * wbytes) as u64, usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST, mapped_at_creation: false }));
             self.vis_capacity = cap;
-            self.uploaded.clear();
+            self.slots.clear();
         }
-        self.uploaded.resize(k, None);
         let vbuf = self.vis.as_ref().expect("allocated above");
-        for j in 0..k {
-            if self.uploaded[j] != Some(vis.traced_at[j]) {
-                self.ctx.queue.write_buffer(vbuf, (j * wbytes) as u64, bytemuck::cast_slice(&vis.bits[j]));
-                self.uploaded[j] = Some(vis.traced_at[j]);
-            }
+        let mut used = vec![false; self.vis_capacity];
+        self.slots.values().for_each(|&s| used[s as usize] = true);
+        let mut free = (0..self.vis_capacity as u32).filter(|&s| !used[s as usize]);
+        let mut out = Vec::with_capacity(k);
+        for (j, key) in keys.iter().enumerate() {
+            let slot = match self.slots.get(key) {
+                Some(&s) => s,
+                None => {
+                    let s = free.next().ok_or_else(|| Error::Gpu("the visibility buffer has no free slot".into()))?;
+                    self.ctx.queue.write_buffer(vbuf, (s as usize * wbytes) as u64, bytemuck::cast_slice(&vis.bits[j]));
+                    self.slots.insert(*key, s);
+                    s
+                }
+            };
+            out.push(slot);
         }
-        Ok(())
+        Ok(out)
     }
 
     fn params(&self, k: usize) -> LightParams {
         LightParams { n: self.n, k: k as u32, words: self.words, block: BLOCK, eps: self.sampling.eps, falloff: self.sampling.falloff, ramp: self.sampling.spot_ramp, pad: 0.0 }
     }
 
-    fn light_buffer(&self, lights: &[Light]) -> wgpu::Buffer {
+    /// The lights as the kernels read them (`shaders/lights.wgsl`), each with the slot of
+    /// its visibility bits.
+    fn light_buffer(&self, lights: &[Light], slots: &[u32]) -> wgpu::Buffer {
         let mut lb: Vec<[f32; 4]> = Vec::with_capacity(3 * lights.len());
-        for l in lights {
+        for (l, &slot) in lights.iter().zip(slots) {
             let (flag, axis, rbd) = match &l.spot {
                 Some(s) => (1.0, s.axis, s.radius_by_dist),
                 None => (0.0, Vec3::ZERO, 0.0),
             };
             lb.push(l.pos.extend(flag).to_array());
             lb.push([l.rgb[0], l.rgb[1], l.rgb[2], rbd]);
-            lb.push(axis.extend(0.0).to_array());
+            // The slot as a float: exact below 2^24 slots, far beyond any binding limit.
+            lb.push(axis.extend(slot as f32).to_array());
         }
         storage(&self.ctx.device, "lights", bytemuck::cast_slice(&lb))
     }
 
     fn try_irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
         let k = lights.len();
-        self.upload_visibility(vis, k)?;
+        let slots = self.upload_visibility(vis, k)?;
         let d = &self.ctx.device;
-        let lbuf = self.light_buffer(lights);
+        let lbuf = self.light_buffer(lights, &slots);
         let size = self.n as u64 * 16;
         let out = output(d, "irradiance", size);
         let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("light params"), contents: bytemuck::bytes_of(&self.params(k)), usage: wgpu::BufferUsages::UNIFORM });
@@ -478,9 +508,9 @@ impl GpuBackend {
 
     fn try_gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
         let k = lights.len();
-        self.upload_visibility(vis, k)?;
+        let slots = self.upload_visibility(vis, k)?;
         let d = &self.ctx.device;
-        let lbuf = self.light_buffer(lights);
+        let lbuf = self.light_buffer(lights, &slots);
         let rho4: Vec<[f32; 4]> = rho.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
         let rbuf = storage(d, "rho", bytemuck::cast_slice(&rho4));
         let groups = self.n.div_ceil(WG).max(1);
@@ -595,5 +625,47 @@ mod tests {
             }
         }
         assert!(cg[2].axis.iter().any(|v| *v != 0.0) && cg[2].radius_by_dist != 0.0, "the spot's cone has a gradient");
+    }
+
+    /// The device's visibility follows the lights as a fit changes them: a light removed
+    /// (the later ones renumbered) and put back, as a pruning try does and undoes, and a
+    /// light traced again at the same position to a longer reach (it brightened). The
+    /// irradiance agrees with the CPU's after each. Before the slots were keyed by
+    /// position and reach, the last step kept the short reach's bits on the device.
+    #[test]
+    fn wgpu_visibility_follows_removals_undos_and_longer_reaches() {
+        let (mut mesh, mut rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        rows.sampling.falloff = 0.02;
+        let bvh = Bvh::build(&mesh);
+        let mut lights: Vec<Light> = [(2.0, 1.2, 0.5), (3.1, 2.0, 2.4), (0.6, 2.2, 2.7), (1.0, 0.8, 1.0), (3.3, 0.7, 0.6)].iter().map(|&(x, y, z)| Light::point(Vec3::new(x, y, z), [1.5, 1.2, 1.0])).collect();
+        let trace = |p: &[(Vec3, f32)]| -> crate::error::Result<Vec<Vec<u32>>> { Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect()) };
+        let mut vis = Visibility::default();
+        vis.update(&crate::model::lights::sources(&lights), 0.0, &rows.sampling, rows.len(), &mut |p| trace(p)).unwrap();
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        let agree = |gpu: &mut GpuBackend, vis: &Visibility, lights: &[Light], what: &str| {
+            let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };
+            let (ce, ge) = (cpu.irradiance(vis, lights).unwrap(), gpu.irradiance(vis, lights).unwrap());
+            let scale = ce.iter().flat_map(|e| e.iter()).copied().fold(0.0f32, f32::max);
+            assert!(scale > 0.0);
+            for (i, (a, b)) in ce.iter().zip(&ge).enumerate() {
+                for c in 0..3 {
+                    assert!((a[c] - b[c]).abs() <= 1e-4 * scale, "{what}: row {i}, cpu {a:?}, wgpu {b:?}");
+                }
+            }
+        };
+        agree(&mut gpu, &vis, &lights, "as traced");
+        let saved = (lights.clone(), vis.clone());
+        lights.remove(1);
+        vis.remove(1);
+        agree(&mut gpu, &vis, &lights, "the second light removed");
+        (lights, vis) = saved;
+        agree(&mut gpu, &vis, &lights, "put back");
+        // The first light traced again where it stands, to 0.8 m and then to no limit.
+        for reach in [0.8f32, f32::INFINITY] {
+            vis.bits[0] = crate::trace::visibility::trace_light(&bvh, &rows, lights[0].pos, reach);
+            vis.traced_reach[0] = reach;
+            agree(&mut gpu, &vis, &lights, &format!("the first light traced to {reach} m"));
+        }
     }
 }
