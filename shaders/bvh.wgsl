@@ -11,10 +11,16 @@ struct Node {
     count: u32,
 }
 
+// The spare lanes serve q3map2's pieces (relight/src/trace/pieces.rs `Shadow`): the
+// trace node of the piece's leaf, its barycentric slack and its coplanar threshold (m^2
+// per metre of ray); zero in the mesh's own tree.
 struct Tri {
-    v0: vec4<f32>,
-    e1: vec4<f32>,
-    e2: vec4<f32>,
+    v0: vec3<f32>,
+    leaf: u32,
+    e1: vec3<f32>,
+    slack: f32,
+    e2: vec3<f32>,
+    coplanar: f32,
 }
 
 const MAX_DEPTH: u32 = 48u;
@@ -48,15 +54,15 @@ fn slab_shadow(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
 // Moeller-Trumbore, two-sided, barycentric coordinates within [-slack, 1 + slack];
 // returns the ray parameter or -1.
 fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, slack: f32) -> f32 {
-    let e1 = tri.e1.xyz;
-    let e2 = tri.e2.xyz;
+    let e1 = tri.e1;
+    let e2 = tri.e2;
     let p = cross(d, e2);
     let det = dot(e1, p);
     if (det == 0.0) {
         return -1.0;
     }
     let inv = 1.0 / det;
-    let s = o - tri.v0.xyz;
+    let s = o - tri.v0;
     let u = dot(s, p) * inv;
     if (u < -slack || u > 1.0 + slack) {
         return -1.0;

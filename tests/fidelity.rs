@@ -93,7 +93,15 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// skylight_bright 0.0250 with the sky's suns traced as q3map2 traces them (through a sky
 /// surface and past no opaque one on the whole way, a ray along an edge stopped: 0.0346
 /// and 0.0388 to the first hit, ties passing), offgrid 0.0017 (0.0039), surface 0.0000,
-/// receiver 0.0107, combo 0.0160 (the shadow walk's boxes grown by its slack).
+/// receiver 0.0107, combo 0.0160 (the shadow walk's boxes grown by its slack); on
+/// 2026-11-27 (seventh), with q3map2's own pieces stopping the shadow rays (convert's
+/// `q3_casters`, relight's `trace::pieces`) and the rays starting at the sample itself:
+/// skylight_bright 0.0250 -> 0.0000, receiver 0.0107 -> 0.0013, detail 0.0069 -> 0,
+/// lamp 0.0069 -> 0, offgrid 0.0017 -> 0, pillar 0.0016 -> 0, twosided 0.0018 -> 0, gamma
+/// 0.0018 -> 0, minlight 0.0013 -> 0, compensate 0.0010 -> 0, dirt 0.0049 -> 0.0046; skylight
+/// 0.0202 -> 0.0231 (its bytes are 0-3: three wall luxels one byte lit where a sun passes
+/// within the slack of a chimney piece's rim, a tie the bright fixture's compile of the
+/// same geometry settles the other way); bounce, combo, filter, pad the same.
 const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
@@ -101,17 +109,17 @@ const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("near_wall", 0.005, &[]),
     ("spot", 0.005, &[]),
     ("surface", 0.005, &[]),
-    ("twosided", 0.008, &[]),
-    ("lamp", 0.012, &[]),
-    ("receiver", 0.015, &[]),
+    ("twosided", 0.005, &[]),
+    ("lamp", 0.005, &[]),
+    ("receiver", 0.005, &[]),
     ("glass", 0.005, &[]),
     ("pad", 0.01, &[]),
     ("column", 0.005, &[]),
     ("arch", 0.005, &[]),
     ("sunk", 0.005, &[]),
     ("sun", 0.005, &[]),
-    ("skylight", 0.025, &[]),
-    ("skylight_bright", 0.03, &[]),
+    ("skylight", 0.026, &[]),
+    ("skylight_bright", 0.005, &[]),
     ("bounce", 0.02, &["bounce"]),
     ("dirt", 0.01, &["dirt"]),
     ("filter", 0.005, &["filter"]),
@@ -119,7 +127,7 @@ const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("compensate", 0.01, &[]),
     ("minlight", 0.005, &[]),
     ("combo", 0.022, &["bounce", "dirt", "filter"]),
-    ("detail", 0.02, &[]),
+    ("detail", 0.005, &[]),
 ];
 
 #[test]
@@ -297,8 +305,10 @@ fn dirt_factors_are_q3map2s_own() {
 /// through the filter and the bounce at any number of lights and the bounce tried at
 /// q3map2's default factor: 0.1656, 0.0585, 0.1516, 0.1053, 0.0785; on 2026-11-27, with
 /// the compile's gamma estimated (`rows::gamma`; the error against the stored bytes):
-/// 0.1562 (gamma 1.25), 0.0585, 0.1516, 0.1053, 0.0705 (gamma 1.375). The third
-/// figure is the range of the estimated gamma.
+/// 0.1562 (gamma 1.25), 0.0585, 0.1516, 0.1053, 0.0705 (gamma 1.375); on 2026-11-27
+/// (seventh), with q3map2's own pieces stopping the shadow rays: 0.1541 (gamma 1.25),
+/// 0.0582, 0.1474, 0.1055, 0.0715 (gamma 1.375). The third figure is the range of the
+/// estimated gamma.
 const TRUTH_SET: [(&str, f64, (f64, f64)); 5] = [("oacmpdm1", 0.175, (1.125, 1.375)), ("oacmpdm2", 0.075, (1.0, 1.0)), ("oacmpdm3", 0.17, (1.0, 1.0)), ("oacmpdm4", 0.125, (1.0, 1.0)), ("oacmpctf1", 0.085, (1.25, 1.5))];
 
 #[test]
@@ -372,7 +382,9 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// before): 0.1646 (95, 5/10), 0.1534 (59, 1/10), the others the same; on 2026-11-27
 /// (sixth), with up to four lights a placement try and ten failed tries in a row ending
 /// it: 0.1676 (92, 6/10), 0.1500 (57, 1/10), 0.1889 (120, 1/10), 0.1286 (56, 10/10),
-/// 0.0823 (19).
+/// 0.0823 (19); on 2026-11-27 (seventh), with q3map2's own pieces stopping the shadow
+/// rays: 0.1699 (85, 5/10), 0.1468 (59, 1/10), 0.1923 (117, 1/10), 0.1226 (57, 10/10),
+/// 0.0830 (21, 1/10).
 /// oacmpdm2's default is path dependent: its
 /// placement subsample has three offsets (`--seed` 1, 2, 3: 0.2313 with 12 lights, 0.1907
 /// with 28, 0.1966 with 24; on 2026-11-27 (fifth), refitted by overlap from the first

@@ -344,9 +344,17 @@ fn build(scene: &Scene, opts: &WriteOptions, image_uris: Option<&[String]>, bin_
             weights: None,
         });
     }
+    // The extras' binary records, each a buffer view its record names.
+    let mut extras = scene.extras.clone();
+    for (key, bytes) in &scene.blobs {
+        let view = b.view(bytes, None);
+        if let Some(record) = extras.as_mut().and_then(|e| e.get_mut(key)).and_then(Value::as_object_mut) {
+            record.insert("bufferView".into(), Value::from(view.value()));
+        }
+    }
     let sc = b.root.push(json::Scene {
         extensions: None,
-        extras: scene.extras.as_ref().and_then(raw),
+        extras: extras.as_ref().and_then(raw),
         name: Some(scene.name.clone()),
         nodes: scene.roots.iter().map(|&r| json::Index::new(r as u32)).collect(),
     });

@@ -12,7 +12,8 @@
 //! * [`shader`]: shader script parsing.
 //! * [`material`]: shader + scripts -> visibility, albedo image, alpha, sidedness.
 //! * [`texture`]: image files -> glTF-ready PNG/JPEG bytes, with limits.
-//! * [`solids`]: where q3map2 found solid, for relight's samples.
+//! * [`solids`]: where q3map2 found solid, for relight's samples; [`casters`]: what
+//!   q3map2's light stage traced its shadow rays against, for relight's shadows.
 //! * [`entities`]: the entity lump; [`mapfile`]: the entities of a `.map` source.
 //! * [`patch`]: adaptive, stitched Bezier patch tessellation; [`lightmesh`]: the coarser
 //!   mesh q3map2's light stage made of a patch (what its surface lights emit from);
@@ -26,6 +27,7 @@
 
 pub mod atlas;
 pub mod bsp;
+pub mod casters;
 pub mod entities;
 pub mod error;
 pub mod gltf_out;

@@ -620,6 +620,10 @@ pub fn build_scene(map: &LoadedMap, opts: &Options, progress: &dyn Fn(&str)) -> 
         extras["q3_solids"] = solids;
     }
     let cmdline = ents.iter().find(|e| e.classname() == "worldspawn").and_then(|w| w.get("_q3map2_cmdline"));
+    if let Some((record, bytes)) = crate::casters::q3map2_casters(bsp, &infos, &ents, cmdline) {
+        extras[crate::casters::KEY] = record;
+        scene.blobs.push((crate::casters::KEY.to_string(), bytes));
+    }
     let subdivisions = crate::lightmesh::subdivisions_of(cmdline);
     if let Some(meshes) = crate::lightmesh::q3map2_patch_lights(bsp, &emitting_patches, subdivisions, opts.scale) {
         extras["q3_patch_lights"] = meshes;

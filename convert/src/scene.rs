@@ -132,6 +132,9 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Scene-level extras (source map, converter settings).
     pub extras: Option<Value>,
+    /// Binary records of the scene's extras, `(key, bytes)`: each is written as a buffer
+    /// view, and `extras[key]["bufferView"]` is set to its index (`q3_casters`).
+    pub blobs: Vec<(String, Vec<u8>)>,
 }
 
 impl Scene {

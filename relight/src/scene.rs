@@ -387,6 +387,11 @@ pub struct Scene {
     /// Where q3map2 sampled the luxels of the curved lightmapped patches (scene extras
     /// `q3_patch_luxels`; [`crate::rows::luxel`] moves those rows there).
     pub patch_luxels: Vec<crate::model::patch_mesh::PatchMesh>,
+    /// The BSP's tree and the triangles q3map2 cast shadows with (scene extras
+    /// `q3_casters` and its buffer view, written by convert): relight's shadow rays test
+    /// q3map2's pieces of them ([`crate::trace::pieces`]). `None` when the file does not
+    /// carry them (a Blender export drops the view): then the mesh's triangles cast.
+    pub casters: Option<crate::trace::pieces::Casters>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

@@ -126,6 +126,7 @@ pub fn scene(mesh: Mesh, materials: Vec<crate::scene::Material>) -> crate::scene
         patch_lights: Vec::new(),
         patch_vertices: Vec::new(),
         patch_luxels: Vec::new(),
+        casters: None,
     }
 }
 

@@ -247,7 +247,21 @@ struct TraceParams {
     words: u32,
     ray_offset: f32,
     inhibit: f32,
-    pad: [f32; 3],
+    /// 1 when `nodes`/`tris` hold q3map2's pieces ([`crate::trace::pieces`]).
+    pieces: u32,
+    /// q3map2's `TRACE_ON_EPSILON`, m.
+    leaf_eps: f32,
+    /// Geometry this close to the light does not shadow it, m.
+    end_margin: f32,
+}
+
+/// `Bound` of `shaders/trace.wgsl`: a trace node's half-space and parent.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuBound {
+    plane: [f32; 4],
+    parent: u32,
+    pad: [u32; 3],
 }
 
 /// `LightParams` of `shaders/lights.wgsl`.
@@ -328,8 +342,12 @@ pub struct GpuBackend {
     words: u32,
     sampling: crate::rows::Sampling,
     rows: wgpu::Buffer,
+    /// The shadow rays' tree: q3map2's pieces where the scene has them, else the mesh's.
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
+    /// The pieces' leaves (one dummy entry for the mesh's tree).
+    bounds: wgpu::Buffer,
+    pieces: Option<f32>,
     /// The device's visibility buffer: `vis_capacity` slots of `words` words each.
     vis: Option<wgpu::Buffer>,
     vis_capacity: usize,
@@ -373,13 +391,20 @@ impl GpuBackend {
         let d = &ctx.device;
         let gr: Vec<GpuRow> = (0..rows.len()).map(|i| GpuRow { pos: rows.pos[i].to_array(), pad0: 0.0, normal: rows.normal[i].to_array(), two_sided: if rows.two_sided[i] { 1.0 } else { 0.0 } }).collect();
         let max = ctx.max_binding();
-        if gr.len() * std::mem::size_of::<GpuRow>() > max || bvh.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max {
+        // The shadow rays' tree: q3map2's pieces where the scene carries them.
+        let (shadow, bounds): (&Bvh, Vec<GpuBound>) = match &bvh.shadow {
+            Some(s) => (&s.bvh, s.bound.iter().zip(&s.parent).map(|(b, &parent)| GpuBound { plane: *b, parent, pad: [0; 3] }).collect()),
+            None => (bvh, vec![GpuBound { plane: [0.0; 4], parent: crate::trace::pieces::NO_PARENT, pad: [0; 3] }]),
+        };
+        if gr.len() * std::mem::size_of::<GpuRow>() > max || shadow.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max || bounds.len() * std::mem::size_of::<GpuBound>() > max {
             return Err(Error::Gpu(format!("the rows or the BVH exceed the adapter's storage binding limit of {max} bytes")));
         }
         Ok(GpuBackend {
             rows: storage(d, "rows", bytemuck::cast_slice(&gr)),
-            nodes: storage(d, "nodes", bytemuck::cast_slice(&bvh.nodes)),
-            tris: storage(d, "tris", bytemuck::cast_slice(&bvh.tris)),
+            nodes: storage(d, "nodes", bytemuck::cast_slice(&shadow.nodes)),
+            tris: storage(d, "tris", bytemuck::cast_slice(&shadow.tris)),
+            bounds: storage(d, "bounds", bytemuck::cast_slice(&bounds)),
+            pieces: bvh.shadow.as_ref().map(|s| s.leaf_epsilon_m),
             n: rows.len() as u32,
             words: rows.len().div_ceil(32).max(1) as u32,
             sampling: rows.sampling,
@@ -401,10 +426,10 @@ impl GpuBackend {
             let size = (batch.len() * self.words as usize * 4) as u64;
             // wgpu zero-initialises new buffers: every bit starts cleared.
             let bits = output(d, "bits", size);
-            let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.sampling.ray_offset, inhibit: self.sampling.inhibit, pad: [0.0; 3] };
+            let params = TraceParams { n: self.n, lights: batch.len() as u32, words: self.words, ray_offset: self.sampling.shadow_offset, inhibit: self.sampling.inhibit, pieces: self.pieces.is_some() as u32, leaf_eps: self.pieces.unwrap_or(0.0), end_margin: self.sampling.ray_offset };
             let ub = d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("trace params"), contents: bytemuck::bytes_of(&params), usage: wgpu::BufferUsages::UNIFORM });
             let layout = self.ctx.pipes.trace.get_bind_group_layout(0);
-            let bg = bind_group(d, &layout, "trace", &[&ub, &self.rows, &self.nodes, &self.tris, &lb, &bits]);
+            let bg = bind_group(d, &layout, "trace", &[&ub, &self.rows, &self.nodes, &self.tris, &lb, &bits, &self.bounds]);
             let mut enc = d.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
@@ -632,6 +657,36 @@ mod tests {
     /// light traced again at the same position to a longer reach (it brightened). The
     /// irradiance agrees with the CPU's after each. Before the slots were keyed by
     /// position and reach, the last step kept the short reach's bits on the device.
+    /// With q3map2's pieces (a scene's `q3_casters`), the device tests the pieces as the
+    /// CPU does: the slack, the coplanar rule and the leaf test give the same bits.
+    #[test]
+    fn wgpu_traces_q3map2_pieces_as_the_cpu_does() {
+        let (mut mesh, rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        let mut rows = rows;
+        rows.sampling.inhibit = 0.01;
+        rows.sampling.shadow_offset = 0.0;
+        // The casters in Quake units (glTF (x, y, z) = Quake (x, z, -y) * 0.0254), a tree of
+        // two planes through the room (x = 40, then z = 30 on its front side).
+        let s = 0.0254f64;
+        let mut c = crate::trace::pieces::Casters {
+            planes: vec![(glam::DVec3::X, 40.0), (glam::DVec3::Z, 30.0)],
+            nodes: vec![(0, [1, -1]), (1, [-2, -3])],
+            leaf_solid: vec![false; 3],
+            ..Default::default()
+        };
+        c.vertices = mesh.positions.iter().map(|p| glam::DVec3::new(p.x as f64, -p.z as f64, p.y as f64) / s).collect();
+        c.triangles = mesh.triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
+        let mut bvh = Bvh::build(&mesh);
+        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, s)));
+        let positions: Vec<(Vec3, f32)> = vec![(Vec3::new(2.0, 1.2, 0.5), f32::INFINITY), (Vec3::new(3.1, 2.0, 2.4), f32::INFINITY), (Vec3::new(0.6, 2.2, 2.7), 2.5)];
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter");
+        let g_bits = gpu.trace(&positions).unwrap();
+        let c_bits: Vec<Vec<u32>> = positions.iter().map(|&(p, r)| crate::trace::visibility::trace_light(&bvh, &rows, p, r)).collect();
+        assert_eq!(g_bits, c_bits, "visibility bits differ");
+        assert!(c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>() > 0, "the pillar casts a shadow");
+    }
+
     #[test]
     fn wgpu_visibility_follows_removals_undos_and_longer_reaches() {
         let (mut mesh, mut rows) = room(8);

@@ -586,6 +586,21 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
     suns.sort_by_key(|s| s.node);
     let units_m = scene_extras.get("q3_scale").and_then(Value::as_f64).filter(|s| s.is_finite() && *s > 1e-6 && *s < 1e3).unwrap_or(q3gltf_convert::units::DEFAULT_SCALE) as f32;
     let relit = scene_extras.get("q3_relight").and_then(relit_of);
+    // q3map2's casters: the record names its buffer view, whose bytes it checks.
+    let casters = match scene_extras.get("q3_casters") {
+        Some(v) => {
+            let view = v.get("bufferView").and_then(Value::as_u64).and_then(|i| doc.views().nth(i as usize));
+            let bytes = view.as_ref().and_then(|view| view_range(view, &buffers).map(|r| &buffers[view.buffer().index()][r]));
+            match bytes.ok_or_else(|| "its buffer view is missing".to_string()).and_then(|b| crate::trace::pieces::Casters::from_record(v, b)) {
+                Ok(c) => Some(c),
+                Err(why) => {
+                    skipped.push(format!("scene extras `q3_casters` left out (the mesh's triangles cast the shadows): {why}"));
+                    None
+                }
+            }
+        }
+        None => None,
+    };
     let solids = match scene_extras.get("q3_solids") {
         Some(v) => match crate::trace::solids::Solids::from_extras(v, origin, units_m as f64) {
             Ok(s) => Some(s),
@@ -621,7 +636,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
             }),
         None => Vec::new(),
     };
-    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights, patch_vertices, patch_luxels })
+    Ok(Scene { mesh, materials, textures, lights, suns, origin, skipped, units_m, compile, relit, solids, patch_lights, patch_vertices, patch_luxels, casters })
 }
 
 /// A material's q3map2 surface light (extras `q3_surfacelight`, written by convert).

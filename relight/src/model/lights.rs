@@ -466,7 +466,7 @@ mod tests {
     #[test]
     fn g_alone_is_the_terms_g() {
         use crate::model::bounce::hash01;
-        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.002, spot_ramp: 0.8, on_epsilon: 0.0 };
+        let s = Sampling { eps: 0.4, ray_offset: 0.0, shadow_offset: 0.0, inhibit: 0.0, falloff: 0.002, spot_ramp: 0.8, on_epsilon: 0.0 };
         let v = |k: u32, a: u32, r: f32| Vec3::new(r * (hash01(k, a) - 0.5), r * (hash01(k, a + 1) - 0.5), r * (hash01(k, a + 2) - 0.5));
         let (mut lit, mut ramp) = (0, 0);
         for k in 0..20_000u32 {
@@ -487,7 +487,7 @@ mod tests {
     /// Below the falloff tolerance a light adds nothing; above it, everything.
     #[test]
     fn falloff_cuts_weak_contributions() {
-        let s = Sampling { eps: 0.4, ray_offset: 0.0, inhibit: 0.0, falloff: 0.05, spot_ramp: 0.8, on_epsilon: 0.0 };
+        let s = Sampling { eps: 0.4, ray_offset: 0.0, shadow_offset: 0.0, inhibit: 0.0, falloff: 0.05, spot_ramp: 0.8, on_epsilon: 0.0 };
         let x = Vec3::ZERO;
         let n = Vec3::Y;
         // g at 2 m straight above = 1/4: I = 0.21 gives 0.0525 > 0.05, I = 0.19 gives 0.0475.

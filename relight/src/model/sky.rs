@@ -46,10 +46,11 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
         .into_par_iter()
         .map(|i| {
             let mut s = 0.0f32;
+            let mut last = crate::trace::bvh::Occluder::default();
             for &w in dirs {
                 let n = rows.facing(i, w);
                 let c = n.dot(w);
-                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i]) {
+                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i], &mut last) {
                     s += c;
                 }
             }

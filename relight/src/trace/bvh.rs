@@ -35,11 +35,15 @@ pub struct Tri {
     pub e2: [f32; 4],
 }
 
+#[derive(Debug, Clone)]
 pub struct Bvh {
     pub nodes: Vec<Node>,
     pub tris: Vec<Tri>,
     /// Original triangle index of each entry of `tris`.
     pub tri_index: Vec<u32>,
+    /// q3map2's own pieces for the shadow rays, where the scene carries them
+    /// ([`crate::trace::pieces`]); the shadow tests use them instead of the triangles.
+    pub shadow: Option<Box<crate::trace::pieces::Shadow>>,
 }
 
 const LEAF_SIZE: usize = 4;
@@ -70,7 +74,7 @@ impl Aabb {
 
 /// The occluder a shadow ray met last, for [`Bvh::occluded_after`] (none at first).
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Occluder(Option<(u32, u32)>);
+pub struct Occluder(pub(crate) Option<(u32, u32)>);
 
 /// How far behind its origin [`Bvh::first_hit_from_plane`] starts a ray, m.
 pub const START_BACK_M: f32 = 1e-4;
@@ -83,13 +87,33 @@ impl Bvh {
 
     /// Builds over the triangles whose material blocks light
     /// ([`crate::scene::Material::casts_shadow`]): the occluders of every shadow ray.
+    /// With q3map2's casters in the scene, its pieces of them stop the shadow rays
+    /// instead ([`Bvh::shadow`]).
     pub fn occluders(scene: &crate::scene::Scene) -> Bvh {
         let casts: Vec<bool> = scene.materials.iter().map(|m| m.casts_shadow).collect();
-        Bvh::build_where(&scene.mesh, |t| casts.get(scene.mesh.tri_material[t] as usize).copied().unwrap_or(true))
+        let mut bvh = Bvh::build_where(&scene.mesh, |t| casts.get(scene.mesh.tri_material[t] as usize).copied().unwrap_or(true));
+        if let Some(c) = &scene.casters {
+            bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(c, scene.origin, scene.units_m as f64)));
+        }
+        bvh
     }
 
     /// Builds over the non-degenerate triangles `t` with `keep(t)`.
     pub fn build_where(mesh: &Mesh, keep: impl Fn(usize) -> bool) -> Bvh {
+        Bvh::build_padded(mesh, keep, 0.0, false)
+    }
+
+    /// Builds over every non-degenerate triangle, each one's box grown by `grow` times
+    /// its largest side (room for a hit test with slack: q3map2's pieces,
+    /// [`crate::trace::pieces::Shadow`]). Only shadow walks may use such a tree. Its
+    /// splits weigh all three axes (the mesh's own tree keeps the longest axis: there a
+    /// first hit's tie at a shared edge, and so the fit's path, depends on the tree; a
+    /// shadow walk's any-hit answer does not).
+    pub fn build_grown(mesh: &Mesh, grow: f32) -> Bvh {
+        Bvh::build_padded(mesh, |_| true, grow, true)
+    }
+
+    fn build_padded(mesh: &Mesh, keep: impl Fn(usize) -> bool, grow: f32, three_axes: bool) -> Bvh {
         let mut items: Vec<(u32, Aabb, Vec3)> = Vec::with_capacity(mesh.triangles.len());
         for (t, tri) in mesh.triangles.iter().enumerate() {
             if !keep(t) {
@@ -103,11 +127,14 @@ impl Bvh {
             bb.grow(a);
             bb.grow(b);
             bb.grow(c);
+            let pad = Vec3::splat(grow * (bb.hi - bb.lo).max_element());
+            bb.lo -= pad;
+            bb.hi += pad;
             items.push((t as u32, bb, (a + b + c) / 3.0));
         }
         let mut nodes = Vec::with_capacity(2 * items.len() / LEAF_SIZE + 1);
         let n = items.len();
-        build_rec(&mut items[..], 0, &mut nodes, 0);
+        build_rec(&mut items[..], 0, &mut nodes, 0, three_axes);
         if n == 0 {
             nodes.clear();
             nodes.push(Node { min: [0.0; 3], right_or_first: 0, max: [0.0; 3], count: 0 });
@@ -119,7 +146,7 @@ impl Bvh {
             tris.push(Tri { v0: a.extend(0.0).to_array(), e1: (b - a).extend(0.0).to_array(), e2: (c - a).extend(0.0).to_array() });
             tri_index.push(*t);
         }
-        Bvh { nodes, tris, tri_index }
+        Bvh { nodes, tris, tri_index, shadow: None }
     }
 
     /// True when the segment `o + s d`, `s` in `(t_min, t_max)` (`t_min >= 0`), hits a
@@ -156,6 +183,36 @@ impl Bvh {
     /// index into tris)`.
     fn occluder(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(u32, u32)> {
         self.occluder_where(o, d, t_min, t_max, EDGE_SLACK, |_| true)
+    }
+
+    /// The shadow walk over the boxes the segment `o + s d`, `s` in `[0, t_max]`, crosses:
+    /// the first triangle `hit` takes (the caller's own test), as `(index into tris)`.
+    pub fn find_leaf_tri(&self, o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(&Tri) -> bool) -> Option<u32> {
+        if self.tris.is_empty() {
+            return None;
+        }
+        let inv = d.recip();
+        if !slab_shadow(&self.nodes[0], o, inv, t_max) {
+            return None;
+        }
+        let mut stack = Stack::root();
+        while let Some(here) = stack.pop() {
+            let node = &self.nodes[here as usize];
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                if let Some(k) = self.tris[first..first + node.count as usize].iter().position(&hit) {
+                    return Some((first + k) as u32);
+                }
+            } else {
+                let (left, right) = (here + 1, node.right_or_first);
+                for child in [right, left] {
+                    if slab_shadow(&self.nodes[child as usize], o, inv, t_max) {
+                        stack.push(child);
+                    }
+                }
+            }
+        }
+        None
     }
 
     /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
@@ -457,7 +514,7 @@ pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
 
 /// Recursive binned-SAH build; returns the node index. Items are reordered in place and a
 /// leaf's `first` is an offset into the whole item array (`base` is this slice's offset).
-fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>, depth: usize) -> u32 {
+fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>, depth: usize, three_axes: bool) -> u32 {
     let mut bb = Aabb::EMPTY;
     let mut cb = Aabb::EMPTY;
     for (_, b, c) in items.iter() {
@@ -471,10 +528,17 @@ fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>
         return me as u32;
     }
     let ext = cb.hi - cb.lo;
-    let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
-    let (lo, span) = (cb.lo[axis], ext[axis]);
-    let mut mid;
-    if span > 0.0 && span.is_finite() {
+    let longest = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+    // The axis and bin split of the lowest SAH cost: the longest axis, or all three.
+    let mut best = (f32::INFINITY, 0usize, longest);
+    for axis in 0..3 {
+        if axis != longest && !three_axes {
+            continue;
+        }
+        let (lo, span) = (cb.lo[axis], ext[axis]);
+        if !(span > 0.0 && span.is_finite()) {
+            continue;
+        }
         let bin_of = |c: Vec3| (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
         let mut bins = [(Aabb::EMPTY, 0usize); BINS];
         for (_, b, c) in items.iter() {
@@ -482,7 +546,6 @@ fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>
             bins[k].0.merge(b);
             bins[k].1 += 1;
         }
-        let mut best = (f32::INFINITY, 0usize);
         for split in 1..BINS {
             let (mut l, mut r) = (Aabb::EMPTY, Aabb::EMPTY);
             let (mut nl, mut nr) = (0, 0);
@@ -503,24 +566,24 @@ fn build_rec(items: &mut [(u32, Aabb, Vec3)], base: usize, nodes: &mut Vec<Node>
             }
             let cost = l.area() * nl as f32 + r.area() * nr as f32;
             if cost < best.0 {
-                best = (cost, split);
+                best = (cost, split, axis);
             }
         }
-        if best.0.is_finite() {
-            let split = best.1;
-            mid = partition(items, |it| bin_of(it.2) < split);
-        } else {
-            mid = items.len() / 2;
-        }
-    } else {
-        mid = items.len() / 2;
     }
+    let mut mid = if best.0.is_finite() {
+        let (split, axis) = (best.1, best.2);
+        let (lo, span) = (cb.lo[axis], ext[axis]);
+        let bin_of = |c: Vec3| (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
+        partition(items, |it| bin_of(it.2) < split)
+    } else {
+        items.len() / 2
+    };
     if mid == 0 || mid == items.len() {
         mid = items.len() / 2;
     }
     let (left, right) = items.split_at_mut(mid);
-    build_rec(left, base, nodes, depth + 1);
-    let r = build_rec(right, base + mid, nodes, depth + 1);
+    build_rec(left, base, nodes, depth + 1, three_axes);
+    let r = build_rec(right, base + mid, nodes, depth + 1, three_axes);
     nodes[me].right_or_first = r;
     nodes[me].count = 0;
     me as u32

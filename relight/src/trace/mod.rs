@@ -1,7 +1,9 @@
 //! Rays through the scene: the BVH ([`bvh`], layout shared with `shaders/bvh.wgsl`) and
 //! the cached shadow-ray visibility of lights and the sun ([`visibility`]), and where
-//! q3map2 found solid ([`solids`]).
+//! q3map2 found solid ([`solids`]), and the pieces q3map2 traced its shadows against
+//! ([`pieces`]).
 
 pub mod bvh;
+pub mod pieces;
 pub mod solids;
 pub mod visibility;

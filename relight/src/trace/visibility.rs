@@ -3,7 +3,7 @@
 //! since its last trace (colour and intensity phases never re-trace).
 //!
 //! A bit is set when the light is in front of the row (`n . d > 0`) and the segment from
-//! `x + n ray_offset` to the light meets no occluder farther than the inhibit radius from
+//! `x + n shadow_offset` to the light meets no occluder farther than the inhibit radius from
 //! its start ([`crate::rows::Sampling`]). `n` is the row's normal turned towards the
 //! light ([`Rows::facing`]): a two-sided row sees lights on both sides, each from the
 //! side it lies on.
@@ -153,7 +153,7 @@ fn sun_ray(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, ahead: crate
         return None;
     }
     let reach = bvh.reach();
-    Some((x + n * s.ray_offset, to_sun * reach, s.inhibit / reach))
+    Some((x + n * s.shadow_offset, to_sun * reach, s.inhibit / reach))
 }
 
 /// Sun visibility: the sun (direction `to_sun`, unit) is in front of the row and the ray
@@ -183,10 +183,16 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// `open`: the scene has no sky surface (a glTF from elsewhere): a ray that nothing
 /// stops sees the sun. The caller finds it once, not per ray.
 #[allow(clippy::too_many_arguments)]
-pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead) -> bool {
+/// `last`: the piece that stopped the row's previous sun (q3map2's pieces only, see
+/// [`crate::trace::pieces::Shadow::occluded_after`]; the same answer).
+pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead, last: &mut Occluder) -> bool {
     let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
     let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
-    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t))
+    let blocked = match &bvh.shadow {
+        Some(pieces) => pieces.occluded_after(o, d, t_min, 1.0, last),
+        None => bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t)),
+    };
+    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !blocked
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
@@ -254,7 +260,9 @@ pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> b
 /// [`visible_from`] with the occluder of the previous ray towards the same light tried
 /// first ([`Bvh::occluded_after`]; the same answer).
 pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, last: &mut Occluder) -> bool {
-    let (offset, inhibit) = (s.ray_offset, s.inhibit);
+    // Geometry within `end` of the light does not shadow it (a light on a face: q3map2's
+    // f32 depth of that face decides it ray by ray, a pattern no model reproduces).
+    let (offset, inhibit, end) = (s.shadow_offset, s.inhibit, s.ray_offset);
     if n.dot(light - x) <= 0.0 {
         return false;
     }
@@ -265,5 +273,9 @@ pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, las
         // The light touches the surface: lit, nothing can be in between.
         return len.is_finite();
     }
-    !bvh.occluded_after(o, d, inhibit / len, 1.0 - offset / len, last)
+    if let Some(pieces) = &bvh.shadow {
+        return !pieces.occluded_after(o, d, inhibit / len, 1.0 - end / len, last);
+    }
+    !bvh.occluded_after(o, d, inhibit / len, 1.0 - end / len, last)
 }
+
