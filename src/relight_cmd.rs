@@ -367,6 +367,10 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
             }
             let from = if l.solids_from == "map" { "the map's own solids" } else { "the faces (the file carries no usable `q3_solids`)" };
             println!("  samples   {} nudged out of solid, {} left out (in solid or enclosed); solid as {from}", l.nudged, l.buried);
+            match rep.shadow_pieces {
+                Some(n) => println!("  shadows   q3map2's own {n} pieces of its casters stop the shadow rays"),
+                None => println!("  shadows   the mesh's triangles stop the shadow rays (the file carries no usable `q3_casters`)"),
+            }
         }
         None => println!(
             "  target    {} vertices with a target, {} censored (lower bounds), {} without baked lighting",

@@ -143,6 +143,9 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         if !(err <= bound) {
             failures.push(format!("{name}: relative error {err:.4} > {bound}"));
         }
+        // q3map2's shadow casters reach relight (convert's `q3_casters`): its pieces stop
+        // the shadow rays.
+        assert!(r["shadow_pieces"].as_u64().is_some_and(|n| n > 0), "{name}: {}", r["skipped_primitives"]);
         // The compile's recorded switches reach the model.
         let recorded = r["compile_cmdline"].as_str().unwrap_or_default();
         assert!(recorded.contains("-light"), "{name}: no recorded compile ({recorded:?})");

@@ -386,6 +386,9 @@ pub struct Report {
     pub stage_times_s: Vec<(String, f64)>,
     pub total_time_s: f64,
     pub skipped_primitives: Vec<String>,
+    /// How many of q3map2's pieces the shadow rays test (`trace::pieces`, from the
+    /// file's `q3_casters`); `None`: the mesh's own triangles stop them.
+    pub shadow_pieces: Option<usize>,
 }
 
 struct Stages {
@@ -729,6 +732,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     progress.stage("bvh");
     let bvh = Bvh::occluders(&scene);
+    let shadow_pieces = bvh.shadow.as_ref().map(|s| s.bvh.tris.len());
     st.done("bvh");
 
     progress.stage("rows");
@@ -1138,6 +1142,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         stage_times_s: st.list,
         total_time_s: t_all.elapsed().as_secs_f64(),
         skipped_primitives: scene.skipped,
+        shadow_pieces,
     })
 }
 
