@@ -76,11 +76,6 @@ pub struct Casters {
 /// A caster's flag: a sky surface.
 pub const SKY: u32 = 1;
 
-/// FNV-1a, 64 bits (convert's check of the record's bytes).
-fn fnv1a64(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
-}
-
 impl Casters {
     /// Reads the record `v` and its buffer view's `bytes`: the counts must give the view's
     /// length exactly, its hash must match, every index must be in range, and the tree's
@@ -93,7 +88,7 @@ impl Casters {
             return Err(format!("its counts do not fit its {} bytes", bytes.len()));
         }
         let hash = v.get("fnv1a64").and_then(Value::as_str).and_then(|h| u64::from_str_radix(h, 16).ok());
-        if hash != Some(fnv1a64(bytes)) {
+        if hash != Some(q3gltf_convert::casters::fnv1a64(bytes)) {
             return Err("its bytes are not the ones it was written with (the file was re-exported?)".into());
         }
         if nn == 0 || nl == 0 {
@@ -155,8 +150,6 @@ struct Winding {
     v: Vec<DVec3>,
     plane: (DVec3, f64),
     sky: bool,
-    /// The casting triangle it was cut from.
-    source: u32,
 }
 
 #[derive(Debug, Clone)]
@@ -165,14 +158,13 @@ enum Node {
     Leaf { solid: bool, items: Vec<Winding> },
 }
 
-/// q3map2's pieces: fan triangles (Quake units), each with the trace node of its leaf and
-/// the casting triangle it was cut from, and per trace node the half-space of its parent's plane on its side (`bound`: `n . p - d
+/// q3map2's pieces: fan triangles (Quake units), each with the trace node of its leaf, and
+/// per trace node the half-space of its parent's plane on its side (`bound`: `n . p - d
 /// >= 0` inside) and its parent ([`NO_PARENT`] at the root).
 #[derive(Debug, Clone, Default)]
 pub struct Pieces {
     pub triangles: Vec<[DVec3; 3]>,
     pub leaf: Vec<u32>,
-    pub source: Vec<u32>,
     pub bound: Vec<(DVec3, f64)>,
     pub parent: Vec<u32>,
 }
@@ -224,7 +216,7 @@ fn clip(w: &Winding, normal: DVec3, dist: f64) -> (Option<Winding>, Option<Windi
         f.push(mid);
         b.push(mid);
     }
-    let keep = |v: Vec<DVec3>| (v.len() >= 3).then(|| Winding { v, plane: w.plane, sky: w.sky, source: w.source });
+    let keep = |v: Vec<DVec3>| (v.len() >= 3).then(|| Winding { v, plane: w.plane, sky: w.sky });
     (keep(f), keep(b))
 }
 
@@ -258,7 +250,7 @@ pub fn build(c: &Casters) -> Pieces {
         nodes[me] = Node::Split { normal, dist, children };
     }
     // 2. Filter every triangle down the tree.
-    for (source, t) in c.triangles.iter().enumerate() {
+    for t in &c.triangles {
         let [p0, p1, p2] = [t[0], t[1], t[2]].map(|i| c.vertices[i as usize]);
         // `PlaneFromPoints`: the normal of (p2 - p0) x (p1 - p0); a degenerate one goes.
         let n = (p2 - p0).cross(p1 - p0);
@@ -267,7 +259,7 @@ pub fn build(c: &Casters) -> Pieces {
             continue;
         }
         let n = n / len;
-        let mut stack = vec![(Winding { v: vec![p0, p1, p2], plane: (n, p0.dot(n)), sky: t[3] & SKY != 0, source: source as u32 }, 0usize)];
+        let mut stack = vec![(Winding { v: vec![p0, p1, p2], plane: (n, p0.dot(n)), sky: t[3] & SKY != 0 }, 0usize)];
         while let Some((w, at)) = stack.pop() {
             match &mut nodes[at] {
                 Node::Leaf { items, .. } => items.push(w),
@@ -353,7 +345,7 @@ pub fn build(c: &Casters) -> Pieces {
     }
     // 4. Fans, leaves of structural solid left out (a ray stops on entering them), and
     // the sky's (they stop nothing).
-    let mut out = Pieces { triangles: Vec::new(), leaf: Vec::new(), source: Vec::new(), bound: Vec::with_capacity(nodes.len()), parent: Vec::with_capacity(nodes.len()) };
+    let mut out = Pieces { triangles: Vec::new(), leaf: Vec::new(), bound: Vec::with_capacity(nodes.len()), parent: Vec::with_capacity(nodes.len()) };
     for (i, node) in nodes.iter().enumerate() {
         let (p, side) = parent[i];
         let b = match nodes.get(p as usize) {
@@ -368,7 +360,6 @@ pub fn build(c: &Casters) -> Pieces {
                 for j in 1..w.v.len() - 1 {
                     out.triangles.push([w.v[0], w.v[j], w.v[j + 1]]);
                     out.leaf.push(i as u32);
-                    out.source.push(w.source);
                 }
             }
         }
@@ -557,7 +548,7 @@ mod tests {
                 b.extend_from_slice(&x.to_le_bytes());
             }
         }
-        let v = serde_json::json!({ "planes": 1, "nodes": nodes.len(), "leafs": 2, "vertices": 3, "triangles": triangles.len(), "fnv1a64": format!("{:016x}", fnv1a64(&b)) });
+        let v = serde_json::json!({ "planes": 1, "nodes": nodes.len(), "leafs": 2, "vertices": 3, "triangles": triangles.len(), "fnv1a64": format!("{:016x}", q3gltf_convert::casters::fnv1a64(&b)) });
         (v, b)
     }
 
