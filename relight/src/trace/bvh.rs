@@ -186,8 +186,11 @@ impl Bvh {
     }
 
     /// The shadow walk over the boxes the segment `o + s d`, `s` in `[0, t_max]`, crosses:
-    /// the first triangle `hit` takes (the caller's own test), as `(index into tris)`.
-    pub fn find_leaf_tri(&self, o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(&Tri) -> bool) -> Option<u32> {
+    /// the first triangle `hit` takes (the caller's own test, given the triangle's index
+    /// into `tris`), as `(leaf node, index into tris)`. Children are tested where their
+    /// parent is visited and only the boxes the segment crosses are pushed (any hit
+    /// answers, so the order does not change the answer).
+    pub fn find_leaf_tri(&self, o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(usize, &Tri) -> bool) -> Option<(u32, u32)> {
         if self.tris.is_empty() {
             return None;
         }
@@ -200,8 +203,8 @@ impl Bvh {
             let node = &self.nodes[here as usize];
             if node.count > 0 {
                 let first = node.right_or_first as usize;
-                if let Some(k) = self.tris[first..first + node.count as usize].iter().position(&hit) {
-                    return Some((first + k) as u32);
+                if let Some(k) = (first..first + node.count as usize).find(|&k| hit(k, &self.tris[k])) {
+                    return Some((here, k as u32));
                 }
             } else {
                 let (left, right) = (here + 1, node.right_or_first);
@@ -225,37 +228,7 @@ impl Bvh {
     /// The shadow walk: the first hit it finds that `accept` takes (see [`Bvh::hits_where`]).
     fn occluder_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool) -> Option<(u32, u32)> {
         debug_assert!((0.0..=EDGE_SLACK).contains(&slack));
-        if self.tris.is_empty() {
-            return None;
-        }
-        let inv = d.recip();
-        if !slab_shadow(&self.nodes[0], o, inv, t_max) {
-            return None;
-        }
-        // Children are tested where their parent is visited and only the boxes the segment
-        // crosses are pushed (any hit answers, so the order does not change the answer).
-        let mut stack = Stack::root();
-        while let Some(here) = stack.pop() {
-            let node = &self.nodes[here as usize];
-            if node.count > 0 {
-                let first = node.right_or_first as usize;
-                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
-                    if let Some(t) = intersect(tri, o, d, slack) {
-                        if t > t_min && t < t_max && accept(self.tri_index[first + k]) {
-                            return Some((here, (first + k) as u32));
-                        }
-                    }
-                }
-            } else {
-                let (left, right) = (here + 1, node.right_or_first);
-                for child in [right, left] {
-                    if slab_shadow(&self.nodes[child as usize], o, inv, t_max) {
-                        stack.push(child);
-                    }
-                }
-            }
-        }
-        None
+        self.find_leaf_tri(o, d, t_max, |k, tri| intersect(tri, o, d, slack).is_some_and(|t| t > t_min && t < t_max) && accept(self.tri_index[k]))
     }
 
     /// Nearest hit `(t, triangle index in the mesh)` along `o + s d`, `s` in `(0, t_max)`.
@@ -445,11 +418,17 @@ pub const EDGE_SLACK: f32 = 1e-5;
 /// Moeller-Trumbore, two-sided, barycentric coordinates within `[-slack, 1 + slack]`.
 /// Returns the ray parameter of the hit.
 pub fn intersect(tri: &Tri, o: Vec3, d: Vec3, slack: f32) -> Option<f32> {
+    intersect_uv(tri, o, d, slack, 0.0).map(|h| h.0)
+}
+
+/// [`intersect`], returning `(t, u, v)`, and missing where `|det| < min_det` (a ray that
+/// close to the triangle's plane: q3map2's coplanar rule, [`crate::trace::pieces`]).
+pub fn intersect_uv(tri: &Tri, o: Vec3, d: Vec3, slack: f32, min_det: f32) -> Option<(f32, f32, f32)> {
     let e1 = Vec3::from_slice(&tri.e1[..3]);
     let e2 = Vec3::from_slice(&tri.e2[..3]);
     let p = d.cross(e2);
     let det = e1.dot(p);
-    if det == 0.0 || !det.is_finite() {
+    if det == 0.0 || !det.is_finite() || !(det.abs() >= min_det) {
         return None;
     }
     let inv = 1.0 / det;
@@ -463,7 +442,7 @@ pub fn intersect(tri: &Tri, o: Vec3, d: Vec3, slack: f32) -> Option<f32> {
     if v < -slack || u + v > 1.0 + slack {
         return None;
     }
-    Some(e2.dot(q) * inv)
+    Some((e2.dot(q) * inv, u, v))
 }
 
 /// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5).

@@ -452,26 +452,7 @@ impl Shadow {
     /// q3map2's test of one piece: the ray parameter of a hit, `None` for a miss (see the
     /// module docs). `len` is `|d|`.
     pub fn hit(&self, tri: &Tri, o: Vec3, d: Vec3, len: f32, t_min: f32, t_max: f32) -> Option<f32> {
-        let e1 = Vec3::from_slice(&tri.e1[..3]);
-        let e2 = Vec3::from_slice(&tri.e2[..3]);
-        let slack = tri.e1[3];
-        let p = d.cross(e2);
-        let det = e1.dot(p);
-        if !(det.abs() >= tri.e2[3] * len) || det == 0.0 {
-            return None;
-        }
-        let inv = 1.0 / det;
-        let s = o - Vec3::from_slice(&tri.v0[..3]);
-        let u = s.dot(p) * inv;
-        if !(-slack..=1.0 + slack).contains(&u) {
-            return None;
-        }
-        let q = s.cross(e1);
-        let v = d.dot(q) * inv;
-        if v < -slack || u + v > 1.0 + slack {
-            return None;
-        }
-        let t = e2.dot(q) * inv;
+        let (t, u, v) = crate::trace::bvh::intersect_uv(tri, o, d, tri.e1[3], tri.e2[3] * len)?;
         if !(t > t_min && t < t_max) {
             return None;
         }
@@ -496,9 +477,9 @@ impl Shadow {
                 return true;
             }
         }
-        match self.bvh.find_leaf_tri(o, d, t_max, |tri| self.hit(tri, o, d, len, t_min, t_max).is_some()) {
-            Some(k) => {
-                last.0 = Some((0, k));
+        match self.bvh.find_leaf_tri(o, d, t_max, |_, tri| self.hit(tri, o, d, len, t_min, t_max).is_some()) {
+            Some(hit) => {
+                last.0 = Some(hit);
                 true
             }
             None => false,
