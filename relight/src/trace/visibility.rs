@@ -182,17 +182,19 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 ///
 /// `open`: the scene has no sky surface (a glTF from elsewhere): a ray that nothing
 /// stops sees the sun. The caller finds it once, not per ray.
-#[allow(clippy::too_many_arguments)]
+///
 /// `last`: the piece that stopped the row's previous sun (q3map2's pieces only, see
 /// [`crate::trace::pieces::Shadow::occluded_after`]; the same answer).
+#[allow(clippy::too_many_arguments)]
 pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead, last: &mut Occluder) -> bool {
     let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
     let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
-    let blocked = match &bvh.shadow {
+    // The sky first: most suns of a row indoors meet none, and then nothing else is traced.
+    let mut blocked = || match &bvh.shadow {
         Some(pieces) => pieces.occluded_after(o, d, t_min, 1.0, last),
         None => bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t)),
     };
-    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !blocked
+    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !blocked()
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
@@ -278,4 +280,3 @@ pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, las
     }
     !bvh.occluded_after(o, d, inhibit / len, 1.0 - end / len, last)
 }
-
