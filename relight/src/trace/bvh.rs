@@ -44,6 +44,9 @@ pub struct Bvh {
     /// q3map2's own pieces for the shadow rays, where the scene carries them
     /// ([`crate::trace::pieces`]); the shadow tests use them instead of the triangles.
     pub shadow: Option<Box<crate::trace::pieces::Shadow>>,
+    /// The four-wide view of `nodes` the CPU's shadow walks take
+    /// ([`crate::trace::wide`]; the same answers, faster).
+    pub wide: crate::trace::wide::Wide,
 }
 
 const LEAF_SIZE: usize = 4;
@@ -146,7 +149,8 @@ impl Bvh {
             tris.push(Tri { v0: a.extend(0.0).to_array(), e1: (b - a).extend(0.0).to_array(), e2: (c - a).extend(0.0).to_array() });
             tri_index.push(*t);
         }
-        Bvh { nodes, tris, tri_index, shadow: None }
+        let wide = crate::trace::wide::Wide::new(&nodes, tris.len());
+        Bvh { nodes, tris, tri_index, shadow: None, wide }
     }
 
     /// True when the segment `o + s d`, `s` in `(t_min, t_max)` (`t_min >= 0`), hits a
@@ -187,35 +191,10 @@ impl Bvh {
 
     /// The shadow walk over the boxes the segment `o + s d`, `s` in `[0, t_max]`, crosses:
     /// the first triangle `hit` takes (the caller's own test, given the triangle's index
-    /// into `tris`), as `(leaf node, index into tris)`. Children are tested where their
-    /// parent is visited and only the boxes the segment crosses are pushed (any hit
-    /// answers, so the order does not change the answer).
+    /// into `tris`), as `(leaf node, index into tris)`, over the four-wide view
+    /// ([`crate::trace::wide`]). Any hit answers, so the order does not change the answer.
     pub fn find_leaf_tri(&self, o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(usize, &Tri) -> bool) -> Option<(u32, u32)> {
-        if self.tris.is_empty() {
-            return None;
-        }
-        let inv = d.recip();
-        if !slab_shadow(&self.nodes[0], o, inv, t_max) {
-            return None;
-        }
-        let mut stack = Stack::root();
-        while let Some(here) = stack.pop() {
-            let node = &self.nodes[here as usize];
-            if node.count > 0 {
-                let first = node.right_or_first as usize;
-                if let Some(k) = (first..first + node.count as usize).find(|&k| hit(k, &self.tris[k])) {
-                    return Some((here, k as u32));
-                }
-            } else {
-                let (left, right) = (here + 1, node.right_or_first);
-                for child in [right, left] {
-                    if slab_shadow(&self.nodes[child as usize], o, inv, t_max) {
-                        stack.push(child);
-                    }
-                }
-            }
-        }
-        None
+        self.wide.find(&self.nodes, &self.tris, o, d, t_max, hit)
     }
 
     /// True when the segment `o + s d`, `s` in `(t_min, t_max)`, hits a triangle that
@@ -388,16 +367,15 @@ impl Stack {
 /// `skylight_bright`'s opening). The same in WGSL (`slab_shadow`); the first-hit walks
 /// keep the exact box (their hit test has no slack, and their ties stay as they were).
 fn slab_shadow(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
-    let (lo, hi) = (Vec3::from(node.min), Vec3::from(node.max));
-    let pad = Vec3::splat(2.0 * EDGE_SLACK * (hi - lo).max_element().max(0.0));
-    slab_box(lo - pad, hi + pad, o, inv, t_max)
+    let (lo, hi) = crate::trace::wide::shadow_box(node);
+    slab_box(lo, hi, o, inv, t_max)
 }
 
 fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     slab_box(Vec3::from(node.min), Vec3::from(node.max), o, inv, t_max)
 }
 
-fn slab_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> bool {
+pub(crate) fn slab_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     let t0 = (min - o) * inv;
     let t1 = (max - o) * inv;
     let near = t0.min(t1).max_element().max(0.0);

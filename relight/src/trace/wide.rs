@@ -1,0 +1,231 @@
+//! A four-wide view of a [`Bvh`](crate::trace::bvh::Bvh) for the CPU's shadow walks: the
+//! binary tree collapsed so that one node holds the boxes of up to four subtrees, laid out
+//! lane by lane, and one visit tests all four against the segment (the compiler turns the
+//! lane loop into vector instructions). The binary tree stays what the WGSL walks and the
+//! first-hit walks use; this view only changes how fast the CPU finds an occluder.
+//!
+//! Its answer is the binary walk's, bit for bit. Both reach exactly the triangles whose
+//! leaf box (grown as the shadow walk grows it, [`shadow_box`]) the segment crosses: a
+//! box that passes the slab test has every box around it pass too (the slab bounds are
+//! monotone in the corners, in f32 as in the reals, and a parent's grown box holds its
+//! children's), so skipping the inner levels of the binary tree culls nothing more or
+//! less. The boxes here are the binary tree's own, grown once when the view is built,
+//! with the same f32 operations the binary walk does per visit.
+//!
+//! Measured on oa_dm1's relit lights (87 lights, 326k shadow rays, one thread, 2-core
+//! Xeon): q3map2's 65,666 pieces 1.32 -> 2.34 M rays/s, the same 239,827 rays stopped.
+
+use glam::Vec3;
+
+use crate::trace::bvh::{Node, Tri, EDGE_SLACK, MAX_DEPTH};
+
+/// A child slot that is a leaf of the binary tree: the low bits are that leaf's index
+/// in [`crate::trace::bvh::Bvh::nodes`] (so a walk's answer names the same leaf).
+const LEAF: u32 = 1 << 31;
+/// An empty child slot (its box is empty, so no segment crosses it).
+const EMPTY: u32 = u32::MAX;
+/// Deepest stack a walk needs: a visit pops one node and pushes at most four, and the
+/// view is no deeper than the binary tree ([`MAX_DEPTH`]).
+const STACK: usize = 3 * MAX_DEPTH + 1;
+
+#[derive(Debug, Clone, Copy)]
+struct Node4 {
+    /// Per axis, per lane: the child's grown box.
+    lo: [[f32; 4]; 3],
+    hi: [[f32; 4]; 3],
+    /// Per lane: a node of this view, `LEAF | binary leaf`, or `EMPTY`.
+    child: [u32; 4],
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Wide {
+    nodes: Vec<Node4>,
+}
+
+/// A node's box as the shadow walks test it: grown by twice [`EDGE_SLACK`] of its
+/// largest side (why: [`crate::trace::bvh`]'s module docs).
+pub fn shadow_box(node: &Node) -> (Vec3, Vec3) {
+    let (lo, hi) = (Vec3::from(node.min), Vec3::from(node.max));
+    let pad = Vec3::splat(2.0 * EDGE_SLACK * (hi - lo).max_element().max(0.0));
+    (lo - pad, hi + pad)
+}
+
+/// Surface area of a node's box, half of it (what the collapse compares).
+fn half_area(n: &Node) -> f32 {
+    let e = Vec3::from(n.max) - Vec3::from(n.min);
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+impl Wide {
+    /// The view of the binary tree `nodes` (depth-first, left child next, as
+    /// [`crate::trace::bvh`] lays it out). Each node of the view takes its binary node's
+    /// children and opens the largest inner one among them until it holds four. A tree
+    /// over no triangles (`triangles == 0`: one empty placeholder node) has an empty view.
+    pub fn new(nodes: &[Node], triangles: usize) -> Wide {
+        let mut w = Wide { nodes: Vec::with_capacity(nodes.len() / 3 + 1) };
+        if !nodes.is_empty() && triangles > 0 {
+            w.collapse(nodes, 0);
+        }
+        w
+    }
+
+    fn collapse(&mut self, nodes: &[Node], root: u32) -> u32 {
+        let me = self.nodes.len();
+        self.nodes.push(Node4 { lo: [[f32::INFINITY; 4]; 3], hi: [[f32::NEG_INFINITY; 4]; 3], child: [EMPTY; 4] });
+        let inner = |k: u32| nodes[k as usize].count == 0;
+        let mut kids: Vec<u32> = if inner(root) { vec![root + 1, nodes[root as usize].right_or_first] } else { vec![root] };
+        while kids.len() < 4 {
+            let widest = kids.iter().enumerate().filter(|(_, &k)| inner(k)).max_by(|a, b| half_area(&nodes[*a.1 as usize]).total_cmp(&half_area(&nodes[*b.1 as usize])));
+            let Some((i, &k)) = widest else { break };
+            kids.swap_remove(i);
+            kids.push(k + 1);
+            kids.push(nodes[k as usize].right_or_first);
+        }
+        for (lane, &k) in kids.iter().enumerate() {
+            let (lo, hi) = shadow_box(&nodes[k as usize]);
+            for a in 0..3 {
+                self.nodes[me].lo[a][lane] = lo[a];
+                self.nodes[me].hi[a][lane] = hi[a];
+            }
+            self.nodes[me].child[lane] = if inner(k) { self.collapse(nodes, k) } else { LEAF | k };
+        }
+        me as u32
+    }
+
+    /// The shadow walk over the boxes the segment `o + s d`, `s` in `[0, t_max]`, crosses:
+    /// the first triangle `hit` takes (given its index into `tris`), as `(binary leaf,
+    /// index into tris)`. Any hit answers, so the order of the walk does not change the
+    /// answer, only which occluder it names.
+    pub fn find(&self, nodes: &[Node], tris: &[Tri], o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(usize, &Tri) -> bool) -> Option<(u32, u32)> {
+        if tris.is_empty() || self.nodes.is_empty() {
+            return None;
+        }
+        let (o, inv) = (o.to_array(), d.recip().to_array());
+        let mut stack = [0u32; STACK];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let n = &self.nodes[stack[len] as usize];
+            // The slab test of `slab_box` in `bvh.rs`, four lanes at once.
+            let mut near = [0.0f32; 4];
+            let mut far = [t_max; 4];
+            for a in 0..3 {
+                for l in 0..4 {
+                    let t0 = (n.lo[a][l] - o[a]) * inv[a];
+                    let t1 = (n.hi[a][l] - o[a]) * inv[a];
+                    near[l] = near[l].max(t0.min(t1));
+                    far[l] = far[l].min(t0.max(t1));
+                }
+            }
+            for l in 0..4 {
+                let c = n.child[l];
+                // NaN (0 * inf on a slab face) compares false: crossed, as in `slab_box`.
+                if c == EMPTY || near[l] > far[l] {
+                    continue;
+                }
+                if c & LEAF != 0 {
+                    let leaf = c & !LEAF;
+                    let node = &nodes[leaf as usize];
+                    let first = node.right_or_first as usize;
+                    if let Some(k) = (first..first + node.count as usize).find(|&k| hit(k, &tris[k])) {
+                        return Some((leaf, k as u32));
+                    }
+                } else {
+                    debug_assert!(len < STACK);
+                    if len < STACK {
+                        stack[len] = c;
+                        len += 1;
+                    }
+                }
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::bounce::hash01;
+    use crate::trace::bvh::{intersect, slab_box, Bvh};
+
+    /// The binary walk, written as the reference: recursion over the binary tree, each
+    /// box tested as the shadow walks grow it.
+    fn binary(bvh: &Bvh, node: u32, o: Vec3, d: Vec3, t_max: f32, hit: &dyn Fn(&Tri) -> bool) -> bool {
+        let n = &bvh.nodes[node as usize];
+        let (lo, hi) = shadow_box(n);
+        if !slab_box(lo, hi, o, d.recip(), t_max) {
+            return false;
+        }
+        if n.count > 0 {
+            let first = n.right_or_first as usize;
+            return bvh.tris[first..first + n.count as usize].iter().any(hit);
+        }
+        binary(bvh, node + 1, o, d, t_max, hit) || binary(bvh, n.right_or_first, o, d, t_max, hit)
+    }
+
+    /// The four-wide walk answers as the binary one, segment by segment: a room and 300
+    /// quads in it, axis-aligned ones among them (their edges are their boxes' faces),
+    /// segments in every direction and along the axes (slab products 0 * inf), segments
+    /// that end on a wall and that start on one.
+    #[test]
+    fn the_wide_walk_answers_as_the_binary_walk() {
+        let (mut mesh, _) = crate::testutil::room(4);
+        let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
+        for k in 0..300u32 {
+            let (x, y, z) = (at(k, 1), at(k, 2), at(k, 3));
+            let (a, b) = (0.05 + 0.4 * hash01(k, 4), 0.05 + 0.4 * hash01(k, 5));
+            let corners = match k % 3 {
+                0 => [[x, y, z], [x + a, y, z], [x + a, y, z + b], [x, y, z + b]],
+                1 => [[x, y, z], [x, y + a, z], [x, y + a, z + b], [x, y, z + b]],
+                _ => [[x, y, z], [x + a, y + 0.3 * b, z], [x + a, y + b, z + a], [x - 0.2 * a, y + b, z + b]],
+            };
+            crate::testutil::push_quad(&mut mesh, corners, Vec3::Y);
+        }
+        let bvh = Bvh::build(&mesh);
+        assert!(bvh.nodes.len() > 100, "a tree of some depth");
+        let grown = Bvh::build_grown(&mesh, 0.03);
+        let (mut blocked, mut open) = (0, 0);
+        for k in 0..20_000u32 {
+            let o = Vec3::new(at(k, 11), at(k, 12), at(k, 13));
+            let mut d = Vec3::new(at(k, 14), at(k, 15), at(k, 16)) - o;
+            match k % 5 {
+                0 => d.x = 0.0,
+                1 => d = Vec3::new(0.0, d.y, 0.0),
+                _ => {}
+            }
+            let o = if k % 7 == 0 { Vec3::new(0.0, o.y, o.z) } else { o };
+            let (t_min, t_max) = (1e-4, if k % 3 == 0 { 1.0 } else { 1.0 - 1e-4 });
+            for tree in [&bvh, &grown] {
+                let hit = |tri: &Tri| intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max);
+                let wide = tree.find_leaf_tri(o, d, t_max, |_, tri| hit(tri));
+                let reference = binary(tree, 0, o, d, t_max, &hit);
+                assert_eq!(wide.is_some(), reference, "segment {k}");
+                // The occluder it names is one the walk reaches, in the leaf it names.
+                if let Some((leaf, t)) = wide {
+                    let n = &tree.nodes[leaf as usize];
+                    assert!(n.count > 0 && (n.right_or_first..n.right_or_first + n.count).contains(&t));
+                }
+                blocked += reference as usize;
+                open += !reference as usize;
+            }
+        }
+        assert!(blocked > 5000 && open > 5000, "both answers exercised: {blocked} blocked, {open} open");
+    }
+
+    /// A tree that is one leaf (a single quad) and an empty one.
+    #[test]
+    fn a_leaf_alone_and_no_tree_at_all() {
+        let mut mesh = crate::testutil::room(2).0;
+        mesh.triangles.clear();
+        mesh.tri_material.clear();
+        mesh.tri_source.clear();
+        let empty = Bvh::build(&mesh);
+        assert!(empty.find_leaf_tri(Vec3::ZERO, Vec3::ONE, 1.0, |_, _| true).is_none());
+        crate::testutil::push_quad(&mut mesh, [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]], Vec3::NEG_Z);
+        let one = Bvh::build(&mesh);
+        assert_eq!(one.nodes.len(), 1);
+        assert_eq!(one.find_leaf_tri(Vec3::new(0.5, 0.3, 0.0), Vec3::Z * 2.0, 1.0, |_, _| true).map(|h| h.0), Some(0));
+        assert!(one.find_leaf_tri(Vec3::new(1.5, 0.3, 0.0), Vec3::Z * 2.0, 1.0, |_, _| true).is_none());
+    }
+}
