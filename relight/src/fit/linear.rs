@@ -24,6 +24,12 @@ use rayon::prelude::*;
 use super::Fitter;
 use crate::model::{lights, Model};
 
+std::thread_local! {
+    /// Per worker thread: the per-row lists of nonzero columns of the linear fit's last
+    /// block ([`Fitter::fit_linear_once`]), kept for the next block to reuse.
+    static BLOCK_NZ: std::cell::Cell<Vec<Vec<(usize, f64)>>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
 /// Most refits of the linear coefficients while the rows at the minlight floor change.
 pub const MINLIGHT_ROUNDS: usize = 8;
 /// Most solves while only the censored channels' active set changes (each round one
@@ -599,7 +605,10 @@ impl Fitter<'_> {
         let parts: Vec<BlockGram> = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|ci| {
-                let mut block_nz: Vec<Vec<(usize, f64)>> = Vec::new();
+                // The rows' lists from the thread's last block (of this fit or an earlier
+                // one): cleared, not freed, so a placement's hundreds of solves do not
+                // allocate a list per row each time.
+                let mut block_nz: Vec<Vec<(usize, f64)>> = BLOCK_NZ.take();
                 let mut basis: Vec<(usize, f64)> = Vec::new();
                 let mut row_b: Vec<f64> = Vec::new();
                 let block = ci * chunk..((ci + 1) * chunk).min(n);
@@ -662,6 +671,7 @@ impl Fitter<'_> {
                         add_row(&mut part.gram[c], &mut part.rhs[c], m, w, mid, &basis);
                     }
                 }
+                BLOCK_NZ.set(block_nz);
                 part
             })
             .collect();
