@@ -193,6 +193,10 @@ fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal
 /// `-fast`).
 const SKIP_BYTES: f32 = 0.01;
 
+/// Rows per block of the basis's loop: neighbouring rows whose rays to one patch share
+/// their occluder hint.
+const HINT_ROWS: usize = 32;
+
 /// Builds the basis for `rows`. `fast`: q3map2's `-fast` cut of area lights.
 pub fn basis(scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis {
     basis_from(patches(scene), scene, rows, bvh, fast)
@@ -212,16 +216,16 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
     // Bytes per unit of form factor, per patch: 0.75 V (the brightest channel's).
     let bytes_per_ff: Vec<f32> = patches.iter().map(|p| p.weight * groups[p.group as usize].source_rgb.iter().copied().fold(0.0, f32::max) / e_per_byte).collect();
     let (push, s) = (crate::scene::q3map2::AREA_PUSH_UNITS * u, &rows.sampling);
-    let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len())
-        .into_par_iter()
-        .map(|i| {
+    // Rows in blocks of neighbours, and per patch what stopped the previous row's ray to
+    // it, tried after what stopped this row's previous ray (the answer is the walk's).
+    let row = |i: usize, by_patch: &mut [crate::trace::bvh::Occluder]| {
             let (x, n, two_sided) = (rows.pos[i], rows.normal[i], rows.two_sided[i]);
             let mut acc: Vec<(u32, f32)> = Vec::new();
             let mut rays = 0u64;
             // The occluder of this row's previous shadow ray, tried first (neighbouring
             // patches are mostly hidden by the same wall; the answer is the same).
             let mut last = crate::trace::bvh::Occluder::default();
-            for (p, bpf) in patches.iter().zip(&bytes_per_ff) {
+            for (k, (p, bpf)) in patches.iter().zip(&bytes_per_ff).enumerate() {
                 // The light origin behind the sample's plane: nothing (a two-sided row
                 // looks both ways).
                 if !two_sided && (p.origin - x).dot(n) < 0.0 {
@@ -256,7 +260,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                     continue;
                 }
                 rays += 1;
-                if !crate::trace::visibility::visible_after(bvh, x, rows.facing(i, target - x), target, s, &mut last) {
+                if !crate::trace::visibility::visible_hinted(bvh, x, rows.facing(i, target - x), target, s, &mut [&mut last, &mut by_patch[k]]) {
                     continue;
                 }
                 let v = std::f32::consts::PI * ff * p.weight;
@@ -266,7 +270,16 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
                 }
             }
             (acc, rays)
+    };
+    let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len().div_ceil(HINT_ROWS))
+        .into_par_iter()
+        .map(|b| {
+            let mut by_patch = vec![crate::trace::bvh::Occluder::default(); patches.len()];
+            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(rows.len())).map(|i| row(i, &mut by_patch)).collect::<Vec<_>>()
         })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .flatten()
         .collect();
     let mut b = SurfaceBasis { offsets: Vec::with_capacity(rows.len() + 1), ..Default::default() };
     b.offsets.push(0);

@@ -166,17 +166,25 @@ impl Bvh {
     /// passes the slab test has every enclosing box pass it too (the slab bounds are
     /// monotone in the box's corners), so the walk would have reached and hit it.
     pub fn occluded_after(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, last: &mut Occluder) -> bool {
-        if let Some((leaf, k)) = last.0 {
-            if let (Some(node), Some(tri)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize)) {
-                let inv = d.recip();
-                if intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max) && slab_shadow(node, o, inv, t_max) {
-                    return true;
+        self.occluded_hinted(o, d, t_min, t_max, &mut [last])
+    }
+
+    /// [`Bvh::occluded_after`] with several remembered occluders (`hints`, tried in
+    /// order; a walk's occluder is remembered in each): the same answer.
+    pub fn occluded_hinted(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, hints: &mut [&mut Occluder]) -> bool {
+        for h in hints.iter() {
+            if let Some((leaf, k)) = h.0 {
+                if let (Some(node), Some(tri)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize)) {
+                    let inv = d.recip();
+                    if intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max) && slab_shadow(node, o, inv, t_max) {
+                        return true;
+                    }
                 }
             }
         }
         match self.occluder(o, d, t_min, t_max) {
             Some(hit) => {
-                last.0 = Some(hit);
+                hints.iter_mut().for_each(|h| h.0 = Some(hit));
                 true
             }
             None => false,
@@ -617,6 +625,7 @@ mod tests {
         let bvh = Bvh::build(&mesh);
         let point = |k: u32| Vec3::new(-1.0 + 6.0 * hash01(k, 1), -1.0 + 4.5 * hash01(k, 2), -1.0 + 5.0 * hash01(k, 3));
         let mut last = Occluder::default();
+        let mut older = Occluder::default();
         let (mut blocked, mut kept) = (0, 0);
         for k in 0..20_000u32 {
             let (a, b) = (point(2 * k), point(2 * k + 1));
@@ -629,6 +638,10 @@ mod tests {
             assert_eq!(bvh.occluded_after(a, d, t_min, t_max, &mut last), walk, "segment {k}");
             assert_eq!(bvh.occluded_after(a, d, t_min, t_max, &mut Occluder::default()), walk);
             assert_eq!(bvh.occluded_after(a, d, t_min, t_max, &mut Occluder(Some((u32::MAX, u32::MAX)))), walk);
+            // Two hints: a bad one, then the occluder of the segment before the last.
+            let mut bad = Occluder(Some((u32::MAX, 0)));
+            assert_eq!(bvh.occluded_hinted(a, d, t_min, t_max, &mut [&mut bad, &mut older]), walk, "segment {k}, two hints");
+            older = before;
             blocked += walk as usize;
             kept += (walk && before.0.is_some() && before.0 == last.0) as usize;
         }

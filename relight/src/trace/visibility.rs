@@ -262,6 +262,12 @@ pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> b
 /// [`visible_from`] with the occluder of the previous ray towards the same light tried
 /// first ([`Bvh::occluded_after`]; the same answer).
 pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, last: &mut Occluder) -> bool {
+    visible_hinted(bvh, x, n, light, s, &mut [last])
+}
+
+/// [`visible_after`] with several remembered occluders, tried in order (the same answer):
+/// a row's previous ray and the previous row's ray to the same target, say.
+pub fn visible_hinted(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, hints: &mut [&mut Occluder]) -> bool {
     // Geometry within `end` of the light does not shadow it (a light on a face: q3map2's
     // f32 depth of that face decides it ray by ray, a pattern no model reproduces).
     let (offset, inhibit, end) = (s.shadow_offset, s.inhibit, s.ray_offset);
@@ -276,7 +282,7 @@ pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, las
         return len.is_finite();
     }
     if let Some(pieces) = &bvh.shadow {
-        return !pieces.occluded_after(o, d, inhibit / len, 1.0 - end / len, last);
+        return !pieces.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints);
     }
-    !bvh.occluded_after(o, d, inhibit / len, 1.0 - end / len, last)
+    !bvh.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints)
 }
