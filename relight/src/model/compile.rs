@@ -186,10 +186,24 @@ fn gather(offsets: &[u32], entries: &[(u32, f32)], x: &[[f64; 3]], col: Option<&
 #[inline]
 fn gather_row(row: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> [f64; 3] {
     let mut y = [0.0f64; 3];
-    for &(j, w) in row {
-        let f = col.map_or([1.0f32; 3], |a| a[j as usize]);
-        for c in 0..3 {
-            y[c] += w as f64 * f[c] as f64 * x[j as usize][c];
+    // The factor's presence decided once per row, not per entry (without one, `w x` is
+    // `w 1 x` to the bit).
+    match col {
+        Some(a) => {
+            for &(j, w) in row {
+                let (f, xj) = (a[j as usize], x[j as usize]);
+                for c in 0..3 {
+                    y[c] += w as f64 * f[c] as f64 * xj[c];
+                }
+            }
+        }
+        None => {
+            for &(j, w) in row {
+                let (w, xj) = (w as f64, x[j as usize]);
+                for c in 0..3 {
+                    y[c] += w * xj[c];
+                }
+            }
         }
     }
     y
