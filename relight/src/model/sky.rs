@@ -38,24 +38,38 @@ pub fn directions(iterations: u32) -> Vec<Vec3> {
     q3gltf_convert::units::q3map2_sky_suns(iterations).into_iter().map(|d| Vec3::new(d[0] as f32, d[2] as f32, -d[1] as f32)).collect()
 }
 
-/// Traces the basis for `dirs` (rayon over rows). `sky[t]` marks sky triangles.
+/// Rows per block of [`basis`]'s loop: neighbouring rows whose rays to one sun share
+/// their hints.
+const HINT_ROWS: usize = 32;
+
+/// Traces the basis for `dirs` (rayon over blocks of rows). `sky[t]` marks sky triangles.
 pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
     let n = dirs.len().max(1) as f32;
     let open = !sky.iter().any(|&k| k);
-    let d = (0..rows.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut s = 0.0f32;
-            let mut last = crate::trace::bvh::Occluder::default();
-            for &w in dirs {
-                let n = rows.facing(i, w);
-                let c = n.dot(w);
-                if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i], &mut last) {
-                    s += c;
-                }
+    use crate::trace::bvh::Occluder;
+    // Rows in blocks of neighbours: per sun, the piece that stopped the previous row's ray
+    // and the sky triangle it crossed are tried first (the same answers).
+    let row = |i: usize, by_sun: &mut [(Occluder, Occluder)]| {
+        let mut s = 0.0f32;
+        let mut last = Occluder::default();
+        for (&w, (stopped, crossed)) in dirs.iter().zip(by_sun.iter_mut()) {
+            let n = rows.facing(i, w);
+            let c = n.dot(w);
+            if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i], &mut [&mut last, stopped], crossed) {
+                s += c;
             }
-            s / n
+        }
+        s / n
+    };
+    let d = (0..rows.len().div_ceil(HINT_ROWS))
+        .into_par_iter()
+        .map(|b| {
+            let mut by_sun = vec![(Occluder::default(), Occluder::default()); dirs.len()];
+            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(rows.len())).map(|i| row(i, &mut by_sun)).collect::<Vec<f32>>()
         })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .flatten()
         .collect();
     let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / n;
     SkyBasis { d, directions: dirs.to_vec(), mean_cos_up }

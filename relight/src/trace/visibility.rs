@@ -183,18 +183,21 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// `open`: the scene has no sky surface (a glTF from elsewhere): a ray that nothing
 /// stops sees the sun. The caller finds it once, not per ray.
 ///
-/// `last`: the piece that stopped the row's previous sun (q3map2's pieces only, see
-/// [`crate::trace::pieces::Shadow::occluded_after`]; the same answer).
+/// `hints`: pieces that stopped earlier rays, tried first (the row's previous sun, the
+/// previous row's ray to this sun; q3map2's pieces only, see
+/// [`crate::trace::pieces::Shadow::occluded_hinted`]); `crossed`: the sky triangle the
+/// previous row's ray to this sun crossed, tried first ([`Bvh::hits_where_hinted`]).
+/// Neither changes the answer.
 #[allow(clippy::too_many_arguments)]
-pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead, last: &mut Occluder) -> bool {
+pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead, hints: &mut [&mut Occluder], crossed: &mut Occluder) -> bool {
     let Some((o, d, t_min)) = sun_ray(bvh, x, n, to_sun, s, ahead) else { return false };
     let is_sky = |t: u32| sky.get(t as usize).copied().unwrap_or(false);
     // The sky first: most suns of a row indoors meet none, and then nothing else is traced.
     let mut blocked = || match &bvh.shadow {
-        Some(pieces) => pieces.occluded_after(o, d, t_min, 1.0, last),
+        Some(pieces) => pieces.occluded_hinted(o, d, t_min, 1.0, hints),
         None => bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t)),
     };
-    (open || bvh.hits_where(o, d, t_min, 1.0, 0.0, is_sky)) && !blocked()
+    (open || bvh.hits_where_hinted(o, d, t_min, 1.0, 0.0, is_sky, crossed)) && !blocked()
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
