@@ -17,23 +17,7 @@
 use glam::Vec3;
 
 use crate::scene::Mesh;
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct Node {
-    pub min: [f32; 3],
-    pub right_or_first: u32,
-    pub max: [f32; 3],
-    pub count: u32,
-}
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct Tri {
-    pub v0: [f32; 4],
-    pub e1: [f32; 4],
-    pub e2: [f32; 4],
-}
+pub use crate::trace::layout::{Node, Tri, EDGE_SLACK, MAX_DEPTH};
 
 #[derive(Debug, Clone)]
 pub struct Bvh {
@@ -51,8 +35,6 @@ pub struct Bvh {
 
 const LEAF_SIZE: usize = 4;
 const BINS: usize = 12;
-/// Stack depth of the traversals (CPU and WGSL); the build never goes deeper.
-pub const MAX_DEPTH: usize = 48;
 
 #[derive(Clone, Copy)]
 struct Aabb {
@@ -413,15 +395,6 @@ pub(crate) fn slab_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> 
     // NaN (0 * inf on a slab face) compares false: treated as a hit, which is conservative.
     !(near > far)
 }
-
-/// Barycentric slack of the shadow rays' hit test ([`Bvh::occluded`], the WGSL shadow
-/// walk): in f32 a ray through the edge two triangles share can miss both (fixture
-/// `arch`: a floor luxel's ray through a diagonal of the column's mesh, which q3map2's 1%
-/// slack blocks). A slack this small closes the crack without q3map2's whole 1% (see the
-/// module docs). The first-hit walks (the sun's way to the sky, bounces) stay exact: with
-/// the slack there, the synthetic sun's search settled 0.4 degree off (error 0.0207
-/// against 0.0007), a plateau of its pattern search, not a worse model.
-pub const EDGE_SLACK: f32 = 1e-5;
 
 /// Moeller-Trumbore, two-sided, barycentric coordinates within `[-slack, 1 + slack]`.
 /// Returns the ray parameter of the hit.

@@ -17,7 +17,7 @@
 
 use glam::Vec3;
 
-use crate::trace::bvh::{Node, Tri, EDGE_SLACK, MAX_DEPTH};
+use crate::trace::layout::{Node, Tri, EDGE_SLACK, MAX_DEPTH};
 
 /// A child slot that is a leaf of the binary tree: the low bits are that leaf's index
 /// in [`crate::trace::bvh::Bvh::nodes`] (so a walk's answer names the same leaf).
@@ -43,7 +43,7 @@ pub struct Wide {
 }
 
 /// A node's box as the shadow walks test it: grown by twice [`EDGE_SLACK`] of its
-/// largest side (why: [`crate::trace::bvh`]'s module docs).
+/// largest side (why: [`crate::trace::bvh`]'s module docs and [`EDGE_SLACK`]).
 pub fn shadow_box(node: &Node) -> (Vec3, Vec3) {
     let (lo, hi) = (Vec3::from(node.min), Vec3::from(node.max));
     let pad = Vec3::splat(2.0 * EDGE_SLACK * (hi - lo).max_element().max(0.0));
