@@ -18,7 +18,6 @@
 //! upward-facing surface). Gradient: `dF/dK_c = sum_i rho_ic D_i`.
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use crate::rows::Rows;
 use crate::trace::bvh::Bvh;
@@ -37,10 +36,6 @@ pub struct SkyBasis {
 pub fn directions(iterations: u32) -> Vec<Vec3> {
     q3gltf_convert::units::q3map2_sky_suns(iterations).into_iter().map(|d| Vec3::new(d[0] as f32, d[2] as f32, -d[1] as f32)).collect()
 }
-
-/// Rows per block of [`basis`]'s loop: neighbouring rows whose rays to one sun share
-/// their hints.
-const HINT_ROWS: usize = 32;
 
 /// Traces the basis for `dirs` (rayon over blocks of rows). `sky[t]` marks sky triangles.
 pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
@@ -61,16 +56,7 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
         }
         s / n
     };
-    let d = (0..rows.len().div_ceil(HINT_ROWS))
-        .into_par_iter()
-        .map(|b| {
-            let mut by_sun = vec![(Occluder::default(), Occluder::default()); dirs.len()];
-            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(rows.len())).map(|i| row(i, &mut by_sun)).collect::<Vec<f32>>()
-        })
-        .collect::<Vec<_>>()
-        .into_iter()
-        .flatten()
-        .collect();
+    let d = crate::trace::visibility::by_neighbour_blocks(rows.len(), || vec![(Occluder::default(), Occluder::default()); dirs.len()], |i, by_sun| row(i, by_sun));
     let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / n;
     SkyBasis { d, directions: dirs.to_vec(), mean_cos_up }
 }

@@ -30,7 +30,6 @@
 //! would add at most one byte at the shader's own value.
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use crate::rows::Rows;
 use crate::scene::Scene;
@@ -193,10 +192,6 @@ fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal
 /// `-fast`).
 const SKIP_BYTES: f32 = 0.01;
 
-/// Rows per block of the basis's loop: neighbouring rows whose rays to one patch share
-/// their occluder hint.
-const HINT_ROWS: usize = 32;
-
 /// Builds the basis for `rows`. `fast`: q3map2's `-fast` cut of area lights.
 pub fn basis(scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis {
     basis_from(patches(scene), scene, rows, bvh, fast)
@@ -271,16 +266,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
             }
             (acc, rays)
     };
-    let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len().div_ceil(HINT_ROWS))
-        .into_par_iter()
-        .map(|b| {
-            let mut by_patch = vec![crate::trace::bvh::Occluder::default(); patches.len()];
-            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(rows.len())).map(|i| row(i, &mut by_patch)).collect::<Vec<_>>()
-        })
-        .collect::<Vec<_>>()
-        .into_iter()
-        .flatten()
-        .collect();
+    let per_row = crate::trace::visibility::by_neighbour_blocks(rows.len(), || vec![crate::trace::bvh::Occluder::default(); patches.len()], |i, by_patch| row(i, by_patch));
     let mut b = SurfaceBasis { offsets: Vec::with_capacity(rows.len() + 1), ..Default::default() };
     b.offsets.push(0);
     for (acc, rays) in per_row {

@@ -154,23 +154,7 @@ impl Bvh {
     /// [`Bvh::occluded_after`] with several remembered occluders (`hints`, tried in
     /// order; a walk's occluder is remembered in each): the same answer.
     pub fn occluded_hinted(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, hints: &mut [&mut Occluder]) -> bool {
-        for h in hints.iter() {
-            if let Some((leaf, k)) = h.0 {
-                if let (Some(node), Some(tri)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize)) {
-                    let inv = d.recip();
-                    if intersect(tri, o, d, EDGE_SLACK).is_some_and(|t| t > t_min && t < t_max) && slab_shadow(node, o, inv, t_max) {
-                        return true;
-                    }
-                }
-            }
-        }
-        match self.occluder(o, d, t_min, t_max) {
-            Some(hit) => {
-                hints.iter_mut().for_each(|h| h.0 = Some(hit));
-                true
-            }
-            None => false,
-        }
+        self.hits_where_hinted(o, d, t_min, t_max, EDGE_SLACK, |_| true, hints)
     }
 
     /// The first occluder the walk finds on the segment (not the nearest): `(leaf node,
@@ -194,22 +178,25 @@ impl Bvh {
         self.occluder_where(o, d, t_min, t_max, slack, accept).is_some()
     }
 
-    /// [`Bvh::hits_where`], trying first the triangle that answered a previous segment
-    /// (`hint`, updated): it counts only where the segment hits it in range, `accept`
-    /// takes it and the segment crosses its leaf's box, so the walk would have found a
-    /// hit too (see [`Bvh::occluded_after`]); the same answer.
+    /// [`Bvh::hits_where`], trying first the triangles that answered earlier segments
+    /// (`hints`, in order; a walk's answer is remembered in each): a remembered triangle
+    /// counts only where the segment hits it in range, `accept` takes it and the segment
+    /// crosses its leaf's box, so the walk would have found a hit too; the same answer.
     #[allow(clippy::too_many_arguments)]
-    pub fn hits_where_hinted(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool, hint: &mut Occluder) -> bool {
-        if let Some((leaf, k)) = hint.0 {
-            if let (Some(node), Some(tri), Some(&t)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize), self.tri_index.get(k as usize)) {
-                if intersect(tri, o, d, slack).is_some_and(|s| s > t_min && s < t_max) && accept(t) && slab_shadow(node, o, d.recip(), t_max) {
-                    return true;
+    pub fn hits_where_hinted(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, slack: f32, accept: impl Fn(u32) -> bool, hints: &mut [&mut Occluder]) -> bool {
+        let inv = d.recip();
+        for h in hints.iter() {
+            if let Some((leaf, k)) = h.0 {
+                if let (Some(node), Some(tri), Some(&t)) = (self.nodes.get(leaf as usize), self.tris.get(k as usize), self.tri_index.get(k as usize)) {
+                    if intersect(tri, o, d, slack).is_some_and(|s| s > t_min && s < t_max) && accept(t) && slab_shadow(node, o, inv, t_max) {
+                        return true;
+                    }
                 }
             }
         }
         match self.occluder_where(o, d, t_min, t_max, slack, accept) {
             Some(hit) => {
-                hint.0 = Some(hit);
+                hints.iter_mut().for_each(|h| h.0 = Some(hit));
                 true
             }
             None => false,
@@ -641,7 +628,7 @@ mod tests {
             // Any hit among some triangles (the sky test), with the triangle that answered
             // an earlier segment tried first.
             let some = |t: u32| t % 3 != 0;
-            assert_eq!(bvh.hits_where_hinted(a, d, t_min, t_max, 0.0, some, &mut crossed), bvh.hits_where(a, d, t_min, t_max, 0.0, some), "segment {k}, a predicate");
+            assert_eq!(bvh.hits_where_hinted(a, d, t_min, t_max, 0.0, some, &mut [&mut crossed]), bvh.hits_where(a, d, t_min, t_max, 0.0, some), "segment {k}, a predicate");
             blocked += walk as usize;
             kept += (walk && before.0.is_some() && before.0 == last.0) as usize;
         }

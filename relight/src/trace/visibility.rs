@@ -197,7 +197,25 @@ pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
         Some(pieces) => pieces.occluded_hinted(o, d, t_min, 1.0, hints),
         None => bvh.hits_where(o, d, t_min, 1.0, EDGE_SLACK, |t| !is_sky(t)),
     };
-    (open || bvh.hits_where_hinted(o, d, t_min, 1.0, 0.0, is_sky, crossed)) && !blocked()
+    (open || bvh.hits_where_hinted(o, d, t_min, 1.0, 0.0, is_sky, &mut [crossed])) && !blocked()
+}
+
+/// Rows per block of [`by_neighbour_blocks`].
+pub const HINT_ROWS: usize = 32;
+
+/// `f(i, hints)` for every row `i < n`, in order: rayon over blocks of [`HINT_ROWS`]
+/// neighbouring rows, each block with its own `hints` (from `init`), handed from row to
+/// row, so that a row's ray to a source tries first what stopped the previous row's ray to
+/// it (the surface lights' and the sky's bases; the answers are the walks').
+pub fn by_neighbour_blocks<T: Send, H>(n: usize, init: impl Fn() -> H + Sync, f: impl Fn(usize, &mut H) -> T + Sync) -> Vec<T> {
+    let blocks: Vec<Vec<T>> = (0..n.div_ceil(HINT_ROWS))
+        .into_par_iter()
+        .map(|b| {
+            let mut hints = init();
+            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(n)).map(|i| f(i, &mut hints)).collect()
+        })
+        .collect();
+    blocks.into_iter().flatten().collect()
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
