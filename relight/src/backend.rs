@@ -31,6 +31,15 @@ pub trait Backend {
 pub struct Cpu<'a> {
     pub rows: &'a Rows,
     pub bvh: &'a Bvh,
+    /// What stopped the rows' rays in recent traces: tried first when a light is traced
+    /// near one of them (the same bits).
+    recent: visibility::RecentOccluders,
+}
+
+impl<'a> Cpu<'a> {
+    pub fn new(rows: &'a Rows, bvh: &'a Bvh) -> Cpu<'a> {
+        Cpu { rows, bvh, recent: Default::default() }
+    }
 }
 
 impl Backend for Cpu<'_> {
@@ -38,7 +47,14 @@ impl Backend for Cpu<'_> {
         format!("cpu ({} threads)", rayon::current_num_threads())
     }
     fn trace(&mut self, lights: &[(Vec3, f32)]) -> Result<Vec<Vec<u32>>> {
-        Ok(lights.iter().map(|&(p, r)| visibility::trace_light(self.bvh, self.rows, p, r)).collect())
+        Ok(lights
+            .iter()
+            .map(|&(p, r)| {
+                let (bits, stopped) = visibility::trace_light_hinted(self.bvh, self.rows, p, r, self.recent.near(p));
+                self.recent.put(p, stopped);
+                bits
+            })
+            .collect())
     }
     fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
         Ok(lights::irradiance(self.rows, vis, lights))

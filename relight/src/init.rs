@@ -163,7 +163,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     let (sub, take) = rows.subsample(sample, seed);
     let sub_bases = bases.subset(&take);
     let diag = (hi - lo).length().max(1e-3);
-    let mut backend = Cpu { rows: &sub, bvh };
+    let mut backend = Cpu::new(&sub, bvh);
     let mut fit = Fitter::new(&sub, &sub_bases, bvh, &mut backend, lo, hi);
     fit.start = start_time;
     fit.deadline = deadline;
@@ -191,7 +191,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     let mut fails_in_row = 0;
     while fit.model.lights.len() < max_lights && !fit.out_of_time() {
         let t = clock();
-        let x = match crate::model::radiance(&fit.model, &sub, &sub_bases, &fit.vis, &mut Cpu { rows: &sub, bvh }) {
+        let x = match crate::model::radiance(&fit.model, &sub, &sub_bases, &fit.vis, &mut Cpu::new(&sub, bvh)) {
             Ok(x) => x,
             Err(_) => break,
         };

@@ -678,7 +678,7 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
     let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, &mut st);
     let (device, _) = choose_backend(choice)?;
     let mut backend: Box<dyn Backend + '_> = match device {
-        Plan::Cpu => Box::new(Cpu { rows: &rows, bvh: &bvh }),
+        Plan::Cpu => Box::new(Cpu::new(&rows, &bvh)),
         Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
     };
     let mut vis = crate::trace::visibility::Visibility::default();
@@ -768,7 +768,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
 
     let mut backend: Box<dyn Backend + '_> = match (plan, tracing) {
-        (Plan::Cpu, None) => Box::new(Cpu { rows: &rows, bvh: &bvh }),
+        (Plan::Cpu, None) => Box::new(Cpu::new(&rows, &bvh)),
         (Plan::Wgpu(ctx), None) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
         (Plan::Cpu, Some((n, b))) => Box::new(crate::light_tracing::Tracing::new(&scene.mesh, &rows, &bvh, n, b, opts.seed)?),
         (Plan::Wgpu(ctx), Some((n, b))) => Box::new(crate::gpu::TracingGpu::new(ctx, &scene.mesh, &rows, &bvh, n, b, opts.seed)?),
@@ -802,7 +802,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         let sub_bases = bases.subset(&take);
         let base_model = Model { lights: Vec::new(), sun: None, gathered: sub_bases.gathered.as_ref().map(|_| [0.5; 3]), ..start.clone() };
         let vis = crate::trace::visibility::Visibility::default();
-        let base = model::radiance(&base_model, &sub, &sub_bases, &vis, &mut Cpu { rows: &sub, bvh: &bvh })?;
+        let base = model::radiance(&base_model, &sub, &sub_bases, &vis, &mut Cpu::new(&sub, &bvh))?;
         let extra: Vec<Vec3> = scene.suns.iter().map(|s| s.to_sun).collect();
         start.sun = init::sun_search(&sub, &bvh, &bases.sky_triangles, &base, &extra, None).map(|(s, _)| s);
     }
@@ -1473,7 +1473,7 @@ fn refine_sun(fit: &mut Fitter, s: Sun, seed: u64) {
     if vis.update(&model::lights::sources(&others.lights), 0.0, &sub.sampling, sub.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(bvh, &sub, q, r)).collect())).is_err() {
         return;
     }
-    let Ok(base) = model::radiance(&others, &sub, &sub_bases, &vis, &mut Cpu { rows: &sub, bvh }) else { return };
+    let Ok(base) = model::radiance(&others, &sub, &sub_bases, &vis, &mut Cpu::new(&sub, bvh)) else { return };
     if let Some((better, _)) = init::sun_search(&sub, bvh, &fit.bases.sky_triangles, &base, &[], Some(s.to_sun)) {
         let before = fit.eval().f;
         let saved = (fit.model.clone(), fit.vis.clone());
@@ -1684,7 +1684,7 @@ mod tests {
         use crate::model::Model;
         let r = bounced_room();
         let truth = &r.truth;
-        let mut cpu = Cpu { rows: &r.rows, bvh: &r.bvh };
+        let mut cpu = Cpu::new(&r.rows, &r.bvh);
         let mut fit = Fitter::new(&r.rows, &r.bases, &r.bvh, &mut cpu, r.lo, r.hi);
         fit.locked = vec![false; 2];
         fit.model = Model { bounce: Some([4e-6; 3]), ..truth.clone() };
@@ -1711,7 +1711,7 @@ mod tests {
         use crate::model::Model;
         let r = bounced_room();
         let lights = r.truth.lights.clone();
-        let mut cpu = Cpu { rows: &r.rows, bvh: &r.bvh };
+        let mut cpu = Cpu::new(&r.rows, &r.bvh);
         let mut fit = Fitter::new(&r.rows, &r.bases, &r.bvh, &mut cpu, r.lo, r.hi);
         fit.locked = vec![false; 2];
         fit.model = Model { lights: lights.clone(), ..Model::default() };

@@ -174,11 +174,11 @@ pub fn factored_transport(n: usize, s: usize) -> crate::model::bounce::Transport
 pub fn data_from_model(rows: &mut crate::rows::Rows, bases: &crate::model::Bases, bvh: &crate::trace::bvh::Bvh, truth: &crate::model::Model, rel: f32) {
     let (lo, hi) = (Vec3::splat(-1e3), Vec3::splat(1e3));
     let x = {
-        let mut cpu = crate::backend::Cpu { rows, bvh };
+        let mut cpu = crate::backend::Cpu::new(rows, bvh);
         let mut fit = crate::fit::Fitter::new(rows, bases, bvh, &mut cpu, lo, hi);
         fit.model = truth.clone();
         fit.refresh_visibility();
-        crate::model::radiance(&fit.model, rows, bases, &fit.vis, &mut crate::backend::Cpu { rows, bvh }).expect("the CPU backend does not fail")
+        crate::model::radiance(&fit.model, rows, bases, &fit.vis, &mut crate::backend::Cpu::new(rows, bvh)).expect("the CPU backend does not fail")
     };
     for (i, xi) in x.iter().enumerate() {
         rows.lo[i] = xi.map(|v| v as f32 * (1.0 - rel));

@@ -168,6 +168,26 @@ fn add_row(gram: &mut [f64], rhs: &mut [f64], m: usize, w: f64, mid: f64, basis:
     }
 }
 
+/// [`add_row`] for the three channels at once, `(weight, target)` per channel and each
+/// unknown's three values: per channel the same products, summed in the same order.
+fn add_row3(gram: &mut [Vec<f64>; 3], rhs: &mut [Vec<f64>; 3], m: usize, wm: [(f64, f64); 3], basis: &[(usize, [f64; 3])]) {
+    let [g0, g1, g2] = gram;
+    let [r0, r1, r2] = rhs;
+    let (w0, w1, w2) = (wm[0].0, wm[1].0, wm[2].0);
+    for &(p, bp) in basis {
+        r0[p] += w0 * bp[0] * wm[0].1;
+        r1[p] += w1 * bp[1] * wm[1].1;
+        r2[p] += w2 * bp[2] * wm[2].1;
+        let (s0, s1, s2) = (w0 * bp[0], w1 * bp[1], w2 * bp[2]);
+        let (h0, h1, h2) = (&mut g0[p * m..(p + 1) * m], &mut g1[p * m..(p + 1) * m], &mut g2[p * m..(p + 1) * m]);
+        for &(q, bq) in basis {
+            h0[q] += s0 * bq[0];
+            h1[q] += s1 * bq[1];
+            h2[q] += s2 * bq[2];
+        }
+    }
+}
+
 /// [`add_row`] for a row with a value for every unknown in order (`b.len() x b.len()`
 /// matrix), zeros included: each Gram row is one contiguous product (vectorised). The
 /// zeros [`add_row`] never sees add `+0` here, which leaves every sum as it was (sums
@@ -378,7 +398,7 @@ impl Fitter<'_> {
     pub fn solve_linear(&mut self) -> f64 {
         let censored = self.rows.any_censored();
         if self.model.minlight.is_none() && !censored {
-            self.fit_linear_once(censored);
+            self.fit_linear_once(censored, None);
             return if self.failure.is_some() { f64::NAN } else { self.value().rel_error };
         }
         // The rows held at the minlight floor, and the censored channels below their
@@ -386,12 +406,17 @@ impl Fitter<'_> {
         // fixed point of both sets), the best kept.
         let mut best: Option<(f64, crate::model::Model)> = None;
         let rounds = if self.model.minlight.is_some() { MINLIGHT_ROUNDS } else { CENSORED_ROUNDS };
+        // Each round's sets come from the model the previous round left, whose radiance
+        // that round's evaluation computed: taken from there, not computed twice.
+        let mut landed: Option<crate::model::Forward> = None;
         for _ in 0..rounds {
-            self.fit_linear_once(censored);
+            self.fit_linear_once(censored, landed.take());
             if self.failure.is_some() {
                 return f64::NAN;
             }
-            let e = self.value().rel_error;
+            let (ev, fw) = self.value_and_forward();
+            let e = ev.rel_error;
+            landed = fw;
             match &best {
                 Some((b, _)) if !(e < *b - 1e-6) => break,
                 _ => best = Some((e, self.model.clone())),
@@ -403,8 +428,9 @@ impl Fitter<'_> {
     }
 
     /// One solve; `censored`: whether the rows have censored channels (their active set
-    /// is taken from the current model).
-    fn fit_linear_once(&mut self, censored: bool) {
+    /// is taken from the current model); `landed`: the current model's forward chain where
+    /// the caller has it (the same visibility).
+    fn fit_linear_once(&mut self, censored: bool, landed: Option<crate::model::Forward>) {
         let (cols, mut values) = self.columns();
         if cols.is_empty() {
             return;
@@ -427,18 +453,23 @@ impl Fitter<'_> {
         let (floor, below): (Vec<[bool; 3]>, Vec<[bool; 3]>) = match (m.minlight, censored) {
             (None, false) => (vec![[false; 3]; n], vec![[false; 3]; n]),
             (ml, _) => {
-                let e = if m.lights.is_empty() {
-                    Vec::new()
-                } else {
-                    match self.backend.irradiance(&self.vis, &m.lights) {
-                        Ok(e) => e,
-                        Err(err) => {
-                            self.failure = Some(err);
-                            return;
-                        }
+                let fw = match landed {
+                    Some(fw) => fw,
+                    None => {
+                        let e = if m.lights.is_empty() {
+                            Vec::new()
+                        } else {
+                            match self.backend.irradiance(&self.vis, &m.lights) {
+                                Ok(e) => e,
+                                Err(err) => {
+                                    self.failure = Some(err);
+                                    return;
+                                }
+                            }
+                        };
+                        crate::model::forward(&m, rows, bases, &self.vis, &e)
                     }
                 };
-                let fw = crate::model::forward(&m, rows, bases, &self.vis, &e);
                 let floor = fw.total.iter().map(|t| [0, 1, 2].map(|c| ml.is_some_and(|ml| t[c] <= ml[c] as f64))).collect();
                 let below = (0..n).map(|i| [0, 1, 2].map(|c| rows.weight[i][c] < 1.0 && fw.x[i][c] < rows.lower[i][c] as f64)).collect();
                 (floor, below)
@@ -630,18 +661,36 @@ impl Fitter<'_> {
                 unknowns.iter().enumerate().for_each(|(l, &p)| local[p] = l as u32);
                 let m = unknowns.len();
                 let mut part = BlockGram { gram: [vec![0.0; m * m], vec![0.0; m * m], vec![0.0; m * m]], rhs: [vec![0.0; m], vec![0.0; m], vec![0.0; m]], unknowns };
+                let mut basis3: Vec<(usize, [f64; 3])> = Vec::new();
                 for i in block.clone() {
                     let nz: &[(usize, f64)] = block_nz.get(i - block.start).map_or(&[], Vec::as_slice);
-                    for c in 0..3 {
-                        // The interval's weight, plus the rest at the lower bound where it
-                        // is active: `w (mid - x)^2 + (1 - w) (lower - x)^2`.
+                    // Per channel: the interval's weight, plus the rest at the lower bound
+                    // where it is active (`w (mid - x)^2 + (1 - w) (lower - x)^2`), and
+                    // the target; `None`: the channel is left out.
+                    let wm = [0, 1, 2].map(|c| {
                         let wi = rows.weight[i][c] as f64;
                         let wl = if below[i][c] { 1.0 - wi } else { 0.0 };
                         let w = rows.area[i] as f64 * (wi + wl);
-                        if w == 0.0 || floor[i][c] {
-                            continue;
+                        (w != 0.0 && !floor[i][c]).then(|| (w, (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl)))
+                    });
+                    // The sparse path with all three channels in: one pass over the row's
+                    // pairs for the three (`add_row3`, each channel's sums as `add_row`'s).
+                    if let (None, None, [Some(w0), Some(w1), Some(w2)]) = (&dense_cols, &kind_cols, wm) {
+                        let a = [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64));
+                        basis3.clear();
+                        basis3.extend(nz.iter().map(|&(q, v)| (local[unknown[q]] as usize, [0, 1, 2].map(|c| a[c] * v * unit[q][c]))));
+                        for &q in &row_wide {
+                            match cols[q] {
+                                Col::Ambient => basis3.push((local[unknown[q]] as usize, [0, 1, 2].map(|c| a[c] * unit[q][c]))),
+                                Col::Gathered => basis3.push((local[unknown[q]] as usize, [0, 1, 2].map(|c| bases.gathered.as_ref().map_or(0.0, |o| o[i][c] as f64) * unit[q][c]))),
+                                _ => {}
+                            }
                         }
-                        let mid = (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl);
+                        add_row3(&mut part.gram, &mut part.rhs, m, [w0, w1, w2], &basis3);
+                        continue;
+                    }
+                    for c in 0..3 {
+                        let Some((w, mid)) = wm[c] else { continue };
                         // Dense columns, one unknown each (never with kinds: those have
                         // `kind_cols`): the row's values in column order (`add_dense_row`,
                         // the same sums as `add_row`'s).
@@ -840,7 +889,7 @@ mod tests {
         let bvh = Bvh::build(&mesh);
         let bases = Bases::default();
         let (lo, hi) = mesh.bounds();
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = Cpu::new(&rows, &bvh);
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         // The entry: the light's best intensity under the full objective, on a coarse scan.
         fit.locked = vec![false];
@@ -854,7 +903,7 @@ mod tests {
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .unwrap();
         // The solve alone does land above the entry here (else this test tests nothing).
-        fit.fit_linear_once(true);
+        fit.fit_linear_once(true, None);
         let e_solve = fit.eval().rel_error;
         assert!(e_solve > e_entry + 0.05, "the case is not hard: entry {e_entry}, solve {e_solve}");
         fit.model = entry.clone();
@@ -892,7 +941,7 @@ mod tests {
         assert!(lights.len() > super::DENSE_COLUMNS);
         let truth = Model { lights: lights.iter().map(|l| Light { rgb: l.rgb.map(|c| c * 0.5), ..*l }).collect(), ambient: Some([0.03, 0.02, 0.025]), ..stated.clone() };
         crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 5e-4);
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = Cpu::new(&rows, &bvh);
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         fit.kind_scales = true;
         fit.frozen_emitters = true;
@@ -930,7 +979,7 @@ mod tests {
             ..Model::default()
         };
         let fitted = |warm: &[(f32, f32)], keep: bool| {
-            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+            let mut cpu = Cpu::new(&rows, &bvh);
             let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
             fit.locked = vec![false; 3];
             if !keep {
@@ -979,6 +1028,30 @@ mod tests {
             let before = g2.clone();
             assert!(!super::add_dense_row(&mut g2, &mut r2, 1.0, 1.0, &[1.0, bad, 0.0, 1.0, 1.0, 1.0, 1.0]));
             assert_eq!(g2, before);
+        }
+    }
+
+    /// The three channels in one pass add, channel by channel, what three `add_row`s add,
+    /// to the bit (weights, targets of both signs and values over eight decades).
+    #[test]
+    fn three_channels_at_once_add_what_one_at_a_time_adds() {
+        let m = 9;
+        let h = |a: u32, b: u32| crate::model::bounce::hash01(a, b) as f64;
+        let mut one: [(Vec<f64>, Vec<f64>); 3] = std::array::from_fn(|_| (vec![0.0; m * m], vec![0.0; m]));
+        let (mut g3, mut r3): ([Vec<f64>; 3], [Vec<f64>; 3]) = (std::array::from_fn(|_| vec![0.0; m * m]), std::array::from_fn(|_| vec![0.0; m]));
+        for row in 0..200u32 {
+            let basis: Vec<(usize, [f64; 3])> = (0..m as u32).filter(|q| (row * 7 + q) % 3 != 0).map(|q| (q as usize, [0, 1, 2].map(|c| h(row, 10 * q + c) * 1e2f64.powi((q % 5) as i32 - 2)))).collect();
+            let wm = [0, 1, 2].map(|c| (0.1 + h(row, 100 + c), h(row, 200 + c) - 0.4));
+            for c in 0..3 {
+                let b: Vec<(usize, f64)> = basis.iter().map(|&(q, v)| (q, v[c])).collect();
+                super::add_row(&mut one[c].0, &mut one[c].1, m, wm[c].0, wm[c].1, &b);
+            }
+            super::add_row3(&mut g3, &mut r3, m, wm, &basis);
+        }
+        for c in 0..3 {
+            assert!(one[c].0.iter().zip(&g3[c]).all(|(a, b)| a.to_bits() == b.to_bits()), "gram, channel {c}");
+            assert!(one[c].1.iter().zip(&r3[c]).all(|(a, b)| a.to_bits() == b.to_bits()), "rhs, channel {c}");
+            assert!(g3[c].iter().all(|v| *v > 0.0), "every pair met");
         }
     }
 }

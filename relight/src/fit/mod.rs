@@ -246,6 +246,26 @@ impl<'a> Fitter<'a> {
         self.eval_model_as(&m, false)
     }
 
+    /// [`Fitter::value`] and the forward chain it ran (`None` after a failure): the
+    /// linear fit's next round needs the same model's radiance.
+    fn value_and_forward(&mut self) -> (Eval, Option<model::Forward>) {
+        let m = self.model.clone();
+        if self.failure.is_some() {
+            return (Eval::failed(&m), None);
+        }
+        let r = self.retrace(&m).and_then(|_| {
+            self.evaluations += 1;
+            model::value_and_forward(&m, self.rows, self.bases, &self.vis, self.backend)
+        });
+        match r {
+            Ok((ev, fw)) => (ev, Some(fw)),
+            Err(e) => {
+                self.failure = Some(e);
+                (Eval::failed(&m), None)
+            }
+        }
+    }
+
     fn eval_model_as(&mut self, m: &Model, gradient: bool) -> Eval {
         if self.failure.is_some() {
             return Eval::failed(m);
@@ -505,7 +525,7 @@ mod tests {
         let (mesh, rows, bases, start) = four_lights();
         let bvh = Bvh::build(&mesh);
         let (lo, hi) = mesh.bounds();
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = Cpu::new(&rows, &bvh);
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         fit.model = start.clone();
         fit.locked = vec![false; 4];

@@ -229,11 +229,11 @@ mod tests {
             .collect();
         // The data: the truth's radiance, intervals 0.01 wide, nothing censored.
         let x = {
-            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+            let mut cpu = Cpu::new(&rows, &bvh);
             let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
             fit.model = Model { lights: truth.clone(), ..Model::default() };
             fit.refresh_visibility();
-            crate::model::radiance(&fit.model, &rows, &bases, &fit.vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap()
+            crate::model::radiance(&fit.model, &rows, &bases, &fit.vis, &mut Cpu::new(&rows, &bvh)).unwrap()
         };
         for (i, xi) in x.iter().enumerate() {
             rows.lo[i] = xi.map(|v| v as f32 - 0.005);
@@ -242,7 +242,7 @@ mod tests {
             rows.lower[i] = [0.0; 3];
         }
         rows.finish();
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = Cpu::new(&rows, &bvh);
         let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
         let half = Vec3::new(0.03, 0.0, 0.0);
         for l in &truth {

@@ -629,7 +629,7 @@ mod tests {
         assert!(c_bits[3].iter().any(|w| *w != 0), "the light outside reaches the two-sided rows behind it");
         let mut vis = Visibility::default();
         vis.update(&crate::model::lights::sources(&lights), 0.0, &rows.sampling, rows.len(), &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
-        let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = crate::backend::Cpu::new(&rows, &bvh);
         let (ce, ge) = (cpu.irradiance(&vis, &lights).unwrap(), gpu.irradiance(&vis, &lights).unwrap());
         let scale = ce.iter().flat_map(|e| e.iter()).copied().fold(0.0f32, f32::max);
         assert!(scale > 0.0);
@@ -699,7 +699,7 @@ mod tests {
         vis.update(&crate::model::lights::sources(&lights), 0.0, &rows.sampling, rows.len(), &mut |p| trace(p)).unwrap();
         let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
         let agree = |gpu: &mut GpuBackend, vis: &Visibility, lights: &[Light], what: &str| {
-            let mut cpu = crate::backend::Cpu { rows: &rows, bvh: &bvh };
+            let mut cpu = crate::backend::Cpu::new(&rows, &bvh);
             let (ce, ge) = (cpu.irradiance(vis, lights).unwrap(), gpu.irradiance(vis, lights).unwrap());
             let scale = ce.iter().flat_map(|e| e.iter()).copied().fold(0.0f32, f32::max);
             assert!(scale > 0.0);

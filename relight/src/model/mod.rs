@@ -410,53 +410,67 @@ pub fn radiance(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
     Ok(forward(model, rows, bases, vis, &e).x)
 }
 
-/// Objective, relative error and gradient of every parameter.
-pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
-    evaluate_as(model, rows, bases, vis, backend, true)
-}
-
 /// [`evaluate`] without the gradient (its fields stay empty): the objective and the
 /// relative error only, for a line search's trials. The adjoint chain and the lights'
 /// gradient kernels are about half of an evaluation.
 pub fn value(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
-    evaluate_as(model, rows, bases, vis, backend, false)
+    value_and_forward(model, rows, bases, vis, backend).map(|(ev, _)| ev)
 }
 
-fn evaluate_as(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, gradient: bool) -> Result<Eval> {
-    let n = rows.len();
+/// [`value`] and the forward chain it ran: a caller that next needs the same model's
+/// radiance (the linear fit's next round) takes it from here.
+pub fn value_and_forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<(Eval, Forward)> {
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
-    // Residuals: rho_x and the objective.
+    let (f, num, _) = residuals(rows, &fw, false);
+    let rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    Ok((Eval { f, rel_error, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() }, fw))
+}
+
+/// The objective, the error's numerator (`sum A w (x - clamp)^2`) and, with `keep`,
+/// `rho_x = dF/dx` per row: per block of rows summed in row order, the blocks in order
+/// (the same bits on any number of threads, with or without `rho_x`).
+fn residuals(rows: &Rows, fw: &Forward, keep: bool) -> (f64, f64, Vec<[f64; 3]>) {
+    let n = rows.len();
     let chunk = crate::rows::block_rows(n);
     let parts: Vec<(f64, f64, Vec<[f64; 3]>)> = (0..n.div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
             let (mut f, mut num) = (0.0, 0.0);
-            let rho: Vec<[f64; 3]> = (ci * chunk..((ci + 1) * chunk).min(n))
-                .map(|i| {
-                    [0, 1, 2].map(|c| {
-                        let (fi, r, ni) = residual(fw.x[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64);
-                        f += fi;
-                        num += ni;
-                        r
-                    })
-                })
-                .collect();
+            let mut rho: Vec<[f64; 3]> = Vec::with_capacity(if keep { chunk } else { 0 });
+            for i in ci * chunk..((ci + 1) * chunk).min(n) {
+                let r = [0, 1, 2].map(|c| {
+                    let (fi, r, ni) = residual(fw.x[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64);
+                    f += fi;
+                    num += ni;
+                    r
+                });
+                if keep {
+                    rho.push(r);
+                }
+            }
             (f, num, rho)
         })
         .collect();
-    let mut ev = Eval { surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
-    let mut num = 0.0;
-    let mut rho_x: Vec<[f64; 3]> = Vec::with_capacity(n);
-    for (f, nm, r) in parts {
-        ev.f += f;
-        num += nm;
+    let (mut f, mut num) = (0.0, 0.0);
+    let mut rho_x: Vec<[f64; 3]> = Vec::with_capacity(if keep { n } else { 0 });
+    for (pf, pn, r) in parts {
+        f += pf;
+        num += pn;
         rho_x.extend(r);
     }
+    (f, num, rho_x)
+}
+
+/// Objective, relative error and gradient of every parameter.
+pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
+    let n = rows.len();
+    let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
+    let fw = forward(model, rows, bases, vis, &e);
+    // Residuals: rho_x and the objective.
+    let (f, num, rho_x) = residuals(rows, &fw, true);
+    let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
     ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
-    if !gradient {
-        return Ok(ev);
-    }
     // rho_T: through the albedo and the minlight floor.
     let mut rho_t = vec![[0.0f64; 3]; n];
     for i in 0..n {
@@ -616,7 +630,7 @@ mod tests {
         vis.update(&lights::sources(&model.lights), 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let sky_tri = vec![true; mesh.triangles.len()];
         vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
-        let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+        let mut cpu = Cpu::new(&rows, &bvh);
         // The floor in the widest gap between the lowest third of the rows' total
         // irradiance: it binds on some rows, and no row sits on its kink.
         let mut model = model;
@@ -634,7 +648,7 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
             pool.install(|| {
                 let fw = forward(&model, &rows, &bases, &vis, &e_lights);
-                let ev = evaluate(&model, &rows, &bases, &vis, &mut Cpu { rows: &rows, bvh: &bvh }).unwrap();
+                let ev = evaluate(&model, &rows, &bases, &vis, &mut Cpu::new(&rows, &bvh)).unwrap();
                 (fw.x, fw.total, format!("{ev:?}"))
             })
         };
@@ -644,7 +658,7 @@ mod tests {
             assert!(on(threads) == one, "{threads} threads");
         }
         let f = |m: &Model| {
-            let mut cpu = Cpu { rows: &rows, bvh: &bvh };
+            let mut cpu = Cpu::new(&rows, &bvh);
             evaluate(m, &rows, &bases, &vis, &mut cpu).unwrap().f
         };
         let check = |name: &str, an: f64, plus: Model, minus: Model, h: f64| {

@@ -61,6 +61,18 @@ impl Aabb {
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Occluder(pub(crate) Option<(u32, u32)>);
 
+impl Occluder {
+    /// In eight bytes (`u64::MAX`: none), for the many kept per row
+    /// ([`crate::trace::visibility::RecentOccluders`]).
+    pub fn packed(self) -> u64 {
+        self.0.map_or(u64::MAX, |(leaf, k)| (leaf as u64) << 32 | k as u64)
+    }
+
+    pub fn unpacked(bits: u64) -> Occluder {
+        Occluder((bits != u64::MAX).then(|| ((bits >> 32) as u32, bits as u32)))
+    }
+}
+
 /// How far behind its origin [`Bvh::first_hit_from_plane`] starts a ray, m.
 pub const START_BACK_M: f32 = 1e-4;
 
@@ -385,12 +397,14 @@ pub(crate) fn slab_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_max: f32) -> 
 
 /// Moeller-Trumbore, two-sided, barycentric coordinates within `[-slack, 1 + slack]`.
 /// Returns the ray parameter of the hit.
+#[inline]
 pub fn intersect(tri: &Tri, o: Vec3, d: Vec3, slack: f32) -> Option<f32> {
     intersect_uv(tri, o, d, slack, 0.0).map(|h| h.0)
 }
 
 /// [`intersect`], returning `(t, u, v)`, and missing where `|det| < min_det` (a ray that
 /// close to the triangle's plane: q3map2's coplanar rule, [`crate::trace::pieces`]).
+#[inline]
 pub fn intersect_uv(tri: &Tri, o: Vec3, d: Vec3, slack: f32, min_det: f32) -> Option<(f32, f32, f32)> {
     let e1 = Vec3::from_slice(&tri.e1[..3]);
     let e2 = Vec3::from_slice(&tri.e2[..3]);

@@ -451,6 +451,7 @@ impl Shadow {
 
     /// q3map2's test of one piece: the ray parameter of a hit, `None` for a miss (see the
     /// module docs). `len` is `|d|`.
+    #[inline(always)]
     pub fn hit(&self, tri: &Tri, o: Vec3, d: Vec3, len: f32, t_min: f32, t_max: f32) -> Option<f32> {
         let (t, u, v) = crate::trace::bvh::intersect_uv(tri, o, d, tri.e1[3], tri.e2[3] * len)?;
         if !(t > t_min && t < t_max) {

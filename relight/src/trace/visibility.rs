@@ -254,24 +254,79 @@ pub const REACH_MARGIN: f32 = 1.5;
 /// Visibility bits of one light position from every row within `reach` meters (rayon,
 /// 32 per task); farther rows get a clear bit without a ray.
 pub fn trace_light(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32) -> Vec<u32> {
+    trace_light_hinted(bvh, pb, light, reach, None).0
+}
+
+/// [`trace_light`] with each row's occluder from a trace of a light nearby (`prior`, one
+/// per row) tried first, then the previous row's: the same bits. Also returns, per row,
+/// the next trace's `prior` ([`RecentOccluders`]): what the walk found, or else the prior
+/// where there was one (whether it or the previous row's answered), or else the previous
+/// row's; a row whose ray was not stopped keeps its prior.
+pub fn trace_light_hinted(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32, prior: Option<&[u64]>) -> (Vec<u32>, Vec<u64>) {
     let n = pb.len();
-    (0..n.div_ceil(32))
-        .into_par_iter()
-        .map(|w| {
+    let prior = prior.filter(|p| p.len() == n);
+    let mut stopped = prior.map_or_else(|| vec![Occluder::default().packed(); n], <[u64]>::to_vec);
+    let bits = stopped
+        .par_chunks_mut(32)
+        .enumerate()
+        .map(|(w, stopped)| {
             let mut word = 0u32;
             let mut last = Occluder::default();
-            for b in 0..32 {
+            for (b, here) in stopped.iter_mut().enumerate() {
                 let i = w * 32 + b;
-                if i >= n {
-                    break;
+                if (pb.pos[i] - light).length_squared() > reach * reach {
+                    continue;
                 }
-                if (pb.pos[i] - light).length_squared() <= reach * reach && visible_after(bvh, pb.pos[i], pb.facing(i, light - pb.pos[i]), light, &pb.sampling, &mut last) {
+                let mut mine = Occluder::unpacked(*here);
+                if visible_hinted(bvh, pb.pos[i], pb.facing(i, light - pb.pos[i]), light, &pb.sampling, &mut [&mut mine, &mut last]) {
                     word |= 1 << b;
+                } else {
+                    *here = if mine.0.is_some() { mine } else { last }.packed();
                 }
             }
             word
         })
-        .collect()
+        .collect();
+    (bits, stopped)
+}
+
+/// The occluders of recent light traces by light position ([`trace_light_hinted`]): a
+/// light traced again a few centimetres from where it was (a fit's step) mostly meets the
+/// pieces that stopped its rays there, and tries them first. Most recent last; at most
+/// [`RECENT_OCCLUDER_BYTES`].
+#[derive(Debug, Default)]
+pub struct RecentOccluders {
+    /// Per trace: its light and, per row, [`Occluder::packed`].
+    entries: std::collections::VecDeque<(Vec3, Vec<u64>)>,
+}
+
+/// Most bytes [`RecentOccluders`] keeps.
+pub const RECENT_OCCLUDER_BYTES: usize = 128 << 20;
+
+/// Farthest a kept trace's light may be from the light traced for its occluders to be
+/// tried, m.
+pub const RECENT_OCCLUDER_RADIUS_M: f32 = 1.0;
+
+impl RecentOccluders {
+    /// The occluders of the kept trace whose light was nearest `p`, within
+    /// [`RECENT_OCCLUDER_RADIUS_M`].
+    pub fn near(&self, p: Vec3) -> Option<&[u64]> {
+        let best = self.entries.iter().map(|(q, o)| ((*q - p).length_squared(), o)).filter(|(d2, _)| *d2 <= RECENT_OCCLUDER_RADIUS_M * RECENT_OCCLUDER_RADIUS_M).min_by(|a, b| a.0.total_cmp(&b.0));
+        best.map(|(_, o)| o.as_slice())
+    }
+
+    /// Keeps the occluders of a trace from `p`, dropping the oldest over the budget.
+    pub fn put(&mut self, p: Vec3, occluders: Vec<u64>) {
+        let bytes = (occluders.len() * std::mem::size_of::<u64>()).max(1);
+        let most = RECENT_OCCLUDER_BYTES / bytes;
+        if most == 0 {
+            return;
+        }
+        while self.entries.len() >= most {
+            self.entries.pop_front();
+        }
+        self.entries.push_back((p, occluders));
+    }
 }
 
 /// One shadow ray (the CPU reference of the WGSL `visible_from`): from `x + n offset`
@@ -306,4 +361,61 @@ pub fn visible_hinted(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, hi
         return !pieces.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints);
     }
     !bvh.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::{Backend, Cpu};
+    use crate::model::bounce::hash01;
+
+    /// A light traced with the occluders of a trace nearby, or with nonsense for them,
+    /// gets the bits of a trace without any; the occluders it hands on stop their rows'
+    /// rays, and a light moved a few centimetres finds most of them again. The CPU
+    /// backend, which keeps them, traces as `trace_light` does.
+    #[test]
+    fn remembered_occluders_change_no_bit() {
+        let (mut mesh, rows) = crate::testutil::room(8);
+        let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
+        for k in 0..200u32 {
+            let (x, y, z) = (at(k, 1), at(k, 2), at(k, 3));
+            let (a, b) = (0.05 + 0.5 * hash01(k, 4), 0.05 + 0.5 * hash01(k, 5));
+            crate::testutil::push_quad(&mut mesh, [[x, y, z], [x + a, y, z], [x + a, y + 0.3 * b, z + b], [x, y + 0.3 * b, z + b]], Vec3::Y);
+        }
+        let bvh = Bvh::build(&mesh);
+        let mut cpu = Cpu::new(&rows, &bvh);
+        let (mut blocked, mut found_again) = (0, 0);
+        for k in 0..12u32 {
+            let p = Vec3::new(0.2 + 3.6 * hash01(k, 21), 0.2 + 2.6 * hash01(k, 22), 0.2 + 3.6 * hash01(k, 23));
+            let reach = if k % 3 == 0 { 2.5 } else { f32::INFINITY };
+            let fresh = trace_light(&bvh, &rows, p, reach);
+            let (bits, first) = trace_light_hinted(&bvh, &rows, p, reach, None);
+            assert_eq!(bits, fresh, "light {k}, no prior");
+            // What it hands on stopped its rows' rays: each alone gives the answer.
+            for i in 0..rows.len() {
+                let lit = fresh[i >> 5] >> (i & 31) & 1 == 1;
+                let out_of_reach = (rows.pos[i] - p).length_squared() > reach * reach;
+                if !lit && !out_of_reach && rows.normal[i].dot(p - rows.pos[i]) > 0.0 {
+                    let mut only = Occluder::unpacked(first[i]);
+                    assert!(only.0.is_some(), "light {k}, row {i}: a blocked row names its occluder");
+                    assert!(!visible_hinted(&bvh, rows.pos[i], rows.facing(i, p - rows.pos[i]), p, &rows.sampling, &mut [&mut only]));
+                    blocked += 1;
+                }
+            }
+            // Moved 3 cm: the same bits as a fresh trace there, and the same occluders met.
+            let q = p + Vec3::new(0.03, -0.02, 0.01);
+            let (moved, again) = trace_light_hinted(&bvh, &rows, q, reach, Some(&first));
+            assert_eq!(moved, trace_light(&bvh, &rows, q, reach), "light {k}, moved");
+            found_again += first.iter().zip(&again).filter(|(a, b)| **a != u64::MAX && a == b).count();
+            // Nonsense remembered: indices past the tree, leaves that are not leaves.
+            let junk: Vec<u64> = (0..rows.len() as u32).map(|i| Occluder(Some((hash01(i, k) as u32 * 7 + i % 5, i.wrapping_mul(2654435761) % 9000))).packed()).collect();
+            assert_eq!(trace_light_hinted(&bvh, &rows, q, reach, Some(&junk)).0, moved, "light {k}, junk");
+            // The backend keeps its traces' occluders and answers as the plain trace.
+            for pos in [p, q, p] {
+                assert_eq!(cpu.trace(&[(pos, reach)]).unwrap(), vec![trace_light(&bvh, &rows, pos, reach)], "light {k}, backend");
+            }
+        }
+        assert!(blocked > 1000, "the scene blocks rays: {blocked}");
+        assert!(found_again * 10 > blocked * 8, "most occluders are met again 3 cm away: {found_again} of {blocked}");
+    }
 }

@@ -96,6 +96,7 @@ impl Wide {
     /// the first triangle `hit` takes (given its index into `tris`), as `(binary leaf,
     /// index into tris)`. Any hit answers, so the order of the walk does not change the
     /// answer, only which occluder it names.
+    #[inline]
     pub fn find(&self, nodes: &[Node], tris: &[Tri], o: Vec3, d: Vec3, t_max: f32, hit: impl Fn(usize, &Tri) -> bool) -> Option<(u32, u32)> {
         if tris.is_empty() || self.nodes.is_empty() {
             return None;
