@@ -103,6 +103,24 @@ pub fn push_quad(mesh: &mut Mesh, corners: [[f32; 3]; 4], normal: glam::Vec3) {
     mesh.tri_source.extend([mesh.triangles.len() as u32 - 2, mesh.triangles.len() as u32 - 1]);
 }
 
+/// `count` small quads scattered in and around [`room`]'s box (the shadow walks' tests):
+/// a third parallel to the floor's axes x and z, a third to y and z (their edges are
+/// their boxes' faces), a third slanted.
+pub fn scatter_quads(mesh: &mut Mesh, count: u32) {
+    use crate::model::bounce::hash01;
+    let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
+    for k in 0..count {
+        let (x, y, z) = (at(k, 1), at(k, 2), at(k, 3));
+        let (a, b) = (0.05 + 0.4 * hash01(k, 4), 0.05 + 0.4 * hash01(k, 5));
+        let corners = match k % 3 {
+            0 => [[x, y, z], [x + a, y, z], [x + a, y, z + b], [x, y, z + b]],
+            1 => [[x, y, z], [x, y + a, z], [x, y + a, z + b], [x, y, z + b]],
+            _ => [[x, y, z], [x + a, y + 0.3 * b, z], [x + a, y + b, z + a], [x - 0.2 * a, y + b, z + b]],
+        };
+        push_quad(mesh, corners, glam::Vec3::Y);
+    }
+}
+
 /// A lightmapped material (no texture, overbright 2) for tests of the model's terms.
 pub fn material(name: &str) -> crate::scene::Material {
     crate::scene::Material { lightmap: Some(0), ..crate::scene::Material::plain(name, crate::scene::Lighting::Lightmap, 2) }

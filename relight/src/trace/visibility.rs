@@ -376,12 +376,7 @@ mod tests {
     #[test]
     fn remembered_occluders_change_no_bit() {
         let (mut mesh, rows) = crate::testutil::room(8);
-        let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
-        for k in 0..200u32 {
-            let (x, y, z) = (at(k, 1), at(k, 2), at(k, 3));
-            let (a, b) = (0.05 + 0.5 * hash01(k, 4), 0.05 + 0.5 * hash01(k, 5));
-            crate::testutil::push_quad(&mut mesh, [[x, y, z], [x + a, y, z], [x + a, y + 0.3 * b, z + b], [x, y + 0.3 * b, z + b]], Vec3::Y);
-        }
+        crate::testutil::scatter_quads(&mut mesh, 300);
         let bvh = Bvh::build(&mesh);
         let mut cpu = Cpu::new(&rows, &bvh);
         let (mut blocked, mut found_again) = (0, 0);

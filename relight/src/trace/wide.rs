@@ -172,17 +172,8 @@ mod tests {
     #[test]
     fn the_wide_walk_answers_as_the_binary_walk() {
         let (mut mesh, _) = crate::testutil::room(4);
+        crate::testutil::scatter_quads(&mut mesh, 300);
         let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
-        for k in 0..300u32 {
-            let (x, y, z) = (at(k, 1), at(k, 2), at(k, 3));
-            let (a, b) = (0.05 + 0.4 * hash01(k, 4), 0.05 + 0.4 * hash01(k, 5));
-            let corners = match k % 3 {
-                0 => [[x, y, z], [x + a, y, z], [x + a, y, z + b], [x, y, z + b]],
-                1 => [[x, y, z], [x, y + a, z], [x, y + a, z + b], [x, y, z + b]],
-                _ => [[x, y, z], [x + a, y + 0.3 * b, z], [x + a, y + b, z + a], [x - 0.2 * a, y + b, z + b]],
-            };
-            crate::testutil::push_quad(&mut mesh, corners, Vec3::Y);
-        }
         let bvh = Bvh::build(&mesh);
         assert!(bvh.nodes.len() > 100, "a tree of some depth");
         let grown = Bvh::build_grown(&mesh, 0.03);
