@@ -673,9 +673,10 @@ impl Fitter<'_> {
                         let w = rows.area[i] as f64 * (wi + wl);
                         (w != 0.0 && !floor[i][c]).then(|| (w, (wi * rows.mid(i, c) + wl * rows.lower[i][c] as f64) / (wi + wl)))
                     });
-                    // The sparse path with all three channels in: one pass over the row's
-                    // pairs for the three (`add_row3`, each channel's sums as `add_row`'s).
-                    if let (None, None, [Some(w0), Some(w1), Some(w2)]) = (&dense_cols, &kind_cols, wm) {
+                    // The sparse path: the row's values for the three channels; with all
+                    // three in, one pass over its pairs (`add_row3`, each channel's sums as
+                    // `add_row`'s), else channel by channel below.
+                    if dense_cols.is_none() && kind_cols.is_none() {
                         let a = [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64));
                         basis3.clear();
                         basis3.extend(nz.iter().map(|&(q, v)| (local[unknown[q]] as usize, [0, 1, 2].map(|c| a[c] * v * unit[q][c]))));
@@ -686,8 +687,10 @@ impl Fitter<'_> {
                                 _ => {}
                             }
                         }
-                        add_row3(&mut part.gram, &mut part.rhs, m, [w0, w1, w2], &basis3);
-                        continue;
+                        if let [Some(w0), Some(w1), Some(w2)] = wm {
+                            add_row3(&mut part.gram, &mut part.rhs, m, [w0, w1, w2], &basis3);
+                            continue;
+                        }
                     }
                     for c in 0..3 {
                         let Some((w, mid)) = wm[c] else { continue };
@@ -705,17 +708,7 @@ impl Fitter<'_> {
                         match (&dense_cols, &kind_cols) {
                             (Some(d), _) => basis.extend((0..cols.len()).map(|q| (local[unknown[q]] as usize, d[q][i][c] * unit[q][c])).filter(|b| b.1 != 0.0)),
                             (None, Some(x)) => basis.extend((0..k).filter(|&p| has[p]).map(|p| (local[p] as usize, x[p][i][c])).filter(|b| b.1 != 0.0)),
-                            (None, None) => {
-                                let a = rows.albedo[i][c] as f64 / std::f64::consts::PI * dirt.map_or(1.0, |d| d[i] as f64);
-                                basis.extend(nz.iter().map(|&(q, v)| (local[unknown[q]] as usize, a * v * unit[q][c])));
-                                for &q in &row_wide {
-                                    match cols[q] {
-                                        Col::Ambient => basis.push((local[unknown[q]] as usize, a * unit[q][c])),
-                                        Col::Gathered => basis.push((local[unknown[q]] as usize, bases.gathered.as_ref().map_or(0.0, |o| o[i][c] as f64) * unit[q][c])),
-                                        _ => {}
-                                    }
-                                }
-                            }
+                            (None, None) => basis.extend(basis3.iter().map(|&(p, v)| (p, v[c]))),
                         }
                         add_row(&mut part.gram[c], &mut part.rhs[c], m, w, mid, &basis);
                     }

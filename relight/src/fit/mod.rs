@@ -236,14 +236,26 @@ impl<'a> Fitter<'a> {
     }
 
     pub fn eval_model(&mut self, m: &Model) -> Eval {
-        self.eval_model_as(m, true)
+        if self.failure.is_some() {
+            return Eval::failed(m);
+        }
+        let r = self.retrace(m).and_then(|_| {
+            self.evaluations += 1;
+            model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
+        });
+        match r {
+            Ok(ev) => ev,
+            Err(e) => {
+                self.failure = Some(e);
+                Eval::failed(m)
+            }
+        }
     }
 
     /// The objective and error of the current model without the gradient (re-traces what
     /// moved): what a linear refit needs to know where it landed.
     pub fn value(&mut self) -> Eval {
-        let m = self.model.clone();
-        self.eval_model_as(&m, false)
+        self.value_and_forward().0
     }
 
     /// [`Fitter::value`] and the forward chain it ran (`None` after a failure): the
@@ -262,27 +274,6 @@ impl<'a> Fitter<'a> {
             Err(e) => {
                 self.failure = Some(e);
                 (Eval::failed(&m), None)
-            }
-        }
-    }
-
-    fn eval_model_as(&mut self, m: &Model, gradient: bool) -> Eval {
-        if self.failure.is_some() {
-            return Eval::failed(m);
-        }
-        let r = self.retrace(m).and_then(|_| {
-            self.evaluations += 1;
-            if gradient {
-                model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
-            } else {
-                model::value(m, self.rows, self.bases, &self.vis, self.backend)
-            }
-        });
-        match r {
-            Ok(ev) => ev,
-            Err(e) => {
-                self.failure = Some(e);
-                Eval::failed(m)
             }
         }
     }
