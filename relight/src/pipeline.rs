@@ -903,14 +903,16 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     st.done("prune: terms");
     let mut pruned = 0;
     let mut merged = 0;
-    if opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") && tracing.is_none() {
+    let may_prune = opts.fit == FitMode::All && (!matches!(opts.init, Init::Grid(_)) || opts.scheme == "default") && tracing.is_none();
+    // Re-associates input sources by position, after pruning and merging removed entries.
+    let reassociate = |lights: &[Light], before: &[Vec3], sources: &[Option<usize>]| -> Vec<Option<usize>> { lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect() };
+    if may_prune {
         let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
         pruned = fit.prune(0.002);
         st.done("prune: lights");
         merged = fit.merge((0.03 * diag).max(2.0 * fit.min_dist), 0.002);
         st.done("prune: merge");
-        // Re-associate input sources by position (pruning and merging removed entries).
-        sources = fit.model.lights.iter().map(|l| before.iter().position(|p| *p == l.pos).and_then(|k| sources.get(k).copied().flatten())).collect();
+        sources = reassociate(&fit.model.lights, &before, &sources);
     }
     // The sun's direction by search, now that the rest explains its part, and the rest
     // polished for it; again while the search turns it (the lights had bent to the
@@ -929,6 +931,18 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     if sun_rounds == 0 && (pruned + merged > 0 || !term_reports.is_empty()) && !fit.out_of_time() {
         fit.run_phase("polish", polish);
+    }
+    // Lights placed while the sun still shone from the placement's coarse direction may have
+    // drawn its patches' edges (the placement's low candidates stand a few decimetres over
+    // a floor); once the search has turned the sun, they explain nothing: pruned again.
+    if sun_rounds > 0 && may_prune && !fit.out_of_time() {
+        let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
+        let again = fit.prune(0.002);
+        if again > 0 {
+            pruned += again;
+            sources = reassociate(&fit.model.lights, &before, &sources);
+            fit.run_phase("polish", polish);
+        }
     }
     st.done("prune: sun, polish");
     // The final state exactly: the fit re-traces a light only once it has moved more than
