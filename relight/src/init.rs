@@ -141,11 +141,12 @@ pub struct AutoTimes {
 /// (2-core Xeon, default relight, one run each; error (lights), s; 0.2/0.45/0.7 ->
 /// 0.08/0.2/0.45/0.7 -> 0.03/0.08/0.2/0.45/0.7): oacmpdm2 0.1533 (58) 32.0 s -> 0.0713 (91)
 /// 30.5 s -> **0.0700** (90) 30.0 s; oacmpdm4 0.1222 (57) -> 0.1014 (59) -> **0.1019**
-/// (59); oa_dm1 0.2301 (87) 46.0 s -> 0.2227 (105) 34.7 s -> **0.2076** (106) 27.1 s;
-/// oacmpdm1 0.1699 (85) -> 0.1647 (109) -> **0.1623** (108); oacmpdm3 0.1935 (115) ->
-/// 0.1914 (123) -> **0.1926** (117); oacmpctf1 0.0830 (21) either way. The placement
-/// finds good lights sooner, so it reaches `max_lights` in fewer failed tries (oa_dm1's
-/// placement 24.9 -> 10.7 s).
+/// (59); oa_dm1 0.2301 (87) -> 0.2227 (105) -> **0.2076** (106); oacmpdm1 0.1699 (85) ->
+/// 0.1647 (109) -> **0.1623** (108); oacmpdm3 0.1935 (115) -> 0.1914 (123) -> **0.1926**
+/// (117); oacmpctf1 0.0830 (21) either way. The placement finds good lights sooner and
+/// reaches `max_lights` after fewer failed tries (oa_dm1: 56 -> 5), so oa_dm1's run took
+/// 30.5-30.8 s against 42.5-43.9 s (two alternating pairs; the placement 22.6-23.6 ->
+/// 11.7-12.2 s).
 const CANDIDATE_HEIGHTS: [f32; 5] = [0.03, 0.08, 0.2, 0.45, 0.7];
 
 /// Rows whose best-scored candidate a round refits (best score first) before it ends
