@@ -503,6 +503,16 @@ impl Fitter<'_> {
             }
         });
         let first_surface_col = cols.iter().position(|col| matches!(col, Col::Surface(_)));
+        // The lights' cached unit factors (the linear fits of pruning, merging and the
+        // terms' decisions see the same lights again and again).
+        let units = if kind_cols.is_none() { lights::unit_lists(rows, &self.vis, &m.lights, true) } else { Vec::new() };
+        let unit_g = |j: usize, range: std::ops::Range<usize>, f: &mut dyn FnMut(usize, f32)| {
+            let l = &m.lights[j];
+            match units.get(j).and_then(Option::as_ref) {
+                Some(list) => self.vis.for_each_visible_with(j, range, list, |i, g| f(i, lights::cut(g, l, &rows.sampling))),
+                None => self.vis.for_each_visible(j, range, |i| f(i, lights::g(rows, i, l))),
+            }
+        };
         // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
         // column order; the gathered column is in radiance already. Light columns run
         // over the rows their light reaches (`for_each_visible`), the rest row by row.
@@ -517,11 +527,8 @@ impl Fitter<'_> {
                     }
                 };
                 match *col {
-                    Col::Light(j) => {
-                        let l = &m.lights[j];
-                        // The falloff cut depends on the intensity: taken at the current one.
-                        self.vis.for_each_visible(j, block.clone(), |i| put(i, lights::g(rows, i, l) as f64));
-                    }
+                    // The falloff cut depends on the intensity: taken at the current one.
+                    Col::Light(j) => unit_g(j, block.clone(), &mut |i, g| put(i, g as f64)),
                     Col::Sun => {
                         if let Some(s) = m.sun {
                             block.clone().for_each(|i| put(i, s.cos_at(rows, &self.vis, i) as f64));
@@ -576,10 +583,8 @@ impl Fitter<'_> {
                 .par_iter()
                 .map(|col| match *col {
                     Col::Light(j) => {
-                        let l = m.lights[j];
                         let mut d = Vec::new();
-                        self.vis.for_each_visible(j, 0..n, |i| {
-                            let g = lights::g(rows, i, &l);
+                        unit_g(j, 0..n, &mut |i, g| {
                             if g != 0.0 {
                                 d.push((i as u32, g));
                             }

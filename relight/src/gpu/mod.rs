@@ -718,8 +718,7 @@ mod tests {
         agree(&mut gpu, &vis, &lights, "put back");
         // The first light traced again where it stands, to 0.8 m and then to no limit.
         for reach in [0.8f32, f32::INFINITY] {
-            vis.bits[0] = crate::trace::visibility::trace_light(&bvh, &rows, lights[0].pos, reach);
-            vis.traced_reach[0] = reach;
+            vis.set_traced(0, crate::trace::visibility::trace_light(&bvh, &rows, lights[0].pos, reach), lights[0].pos, reach);
             agree(&mut gpu, &vis, &lights, &format!("the first light traced to {reach} m"));
         }
     }

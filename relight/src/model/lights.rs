@@ -33,11 +33,13 @@
 //! rho) / ramp`, `d cone / d r = t / ramp`. Visibility and the falloff cut are piecewise
 //! constant: their derivative is zero almost everywhere.
 
+use std::sync::Arc;
+
 use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::rows::{Rows, Sampling};
-use crate::trace::visibility::Visibility;
+use crate::trace::visibility::{UnitKey, UnitList, Visibility, UNIT_STRETCH_WORDS};
 
 /// A spot light's cone (q3map2's spot: a light entity with a `target`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -178,6 +180,29 @@ pub fn g(rows: &Rows, i: usize, l: &Light) -> f32 {
 /// [`g`] at an arbitrary point.
 #[inline]
 pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
+    cut(g_uncut_at(x, n, l, s), l, s)
+}
+
+/// [`g`] before the falloff cut (which depends on the light's intensity): what a light's
+/// [`UnitList`] keeps.
+#[inline]
+pub fn g_uncut(rows: &Rows, i: usize, l: &Light) -> f32 {
+    g_uncut_at(rows.pos[i], rows.facing(i, l.pos - rows.pos[i]), l, &rows.sampling)
+}
+
+/// The falloff cut of [`g`]: nothing where the light's brightest channel adds at most
+/// [`Sampling::falloff`].
+#[inline]
+pub fn cut(g: f32, l: &Light, s: &Sampling) -> f32 {
+    if s.falloff > 0.0 && l.max_rgb() * g <= s.falloff {
+        return 0.0;
+    }
+    g
+}
+
+/// [`g_at`] before the falloff cut.
+#[inline]
+fn g_uncut_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
     let d = l.pos - x;
     let sd = n.dot(d);
     let r2 = d.length_squared();
@@ -204,10 +229,59 @@ pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
             g0 * c
         }
     };
-    if s.falloff > 0.0 && l.max_rgb() * g <= s.falloff {
-        return 0.0;
-    }
     g
+}
+
+/// What light `j`'s [`UnitList`] depends on besides its bits.
+fn unit_key(l: &Light, vis: &Visibility, j: usize) -> UnitKey {
+    let (axis, r) = l.spot.map_or((Vec3::splat(f32::NAN), f32::NAN), |sp| (sp.axis, sp.radius_by_dist));
+    let at = vis.traced_at[j];
+    [l.pos.x, l.pos.y, l.pos.z, axis.x, axis.y, axis.z, r, at.x, at.y, at.z, vis.traced_reach[j], if l.spot.is_some() { 1.0 } else { 0.0 }].map(f32::to_bits)
+}
+
+/// Per light: its cached [`UnitList`] where its geometry has one; with `build`, built
+/// here (all such lights at once, in parallel) for a geometry asked the second time in a
+/// row ([`crate::trace::visibility::UnitSlot`]); `None` where the caller computes [`g`]
+/// itself. The values are [`g_uncut`]'s, so a caller that applies [`cut`] to them gets
+/// [`g`]'s to the bit.
+///
+/// The evaluations ask without `build` and the linear fit with it: a phase evaluates the
+/// same lights twice in a row (a line search's value, then its gradient) and moves them
+/// on, so a list built there is not read again; a linear fit comes back to its lights.
+pub fn unit_lists(rows: &Rows, vis: &Visibility, lights: &[Light], build: bool) -> Vec<Option<Arc<UnitList>>> {
+    let mut out: Vec<Option<Arc<UnitList>>> = vec![None; lights.len()];
+    let mut todo: Vec<(usize, UnitKey)> = Vec::new();
+    for (j, l) in lights.iter().enumerate().take(vis.bits.len()) {
+        let Some(slot) = vis.unit_slot(j) else { continue };
+        let key = unit_key(l, vis, j);
+        match slot.lookup(&key) {
+            Ok(list) => out[j] = Some(list),
+            Err(true) if build => todo.push((j, key)),
+            Err(_) => {}
+        }
+    }
+    let n = rows.len();
+    let built: Vec<(usize, UnitKey, Arc<UnitList>)> = todo
+        .into_par_iter()
+        .map(|(j, key)| {
+            let l = &lights[j];
+            let words = vis.bits[j].len();
+            let mut list = UnitList { values: Vec::new(), stretch_start: Vec::with_capacity(words.div_ceil(UNIT_STRETCH_WORDS)) };
+            for s in 0..words.div_ceil(UNIT_STRETCH_WORDS) {
+                list.stretch_start.push(list.values.len() as u32);
+                let stretch = (s * UNIT_STRETCH_WORDS * 32).min(n)..((s + 1) * UNIT_STRETCH_WORDS * 32).min(n);
+                vis.for_each_visible(j, stretch, |i| list.values.push(g_uncut(rows, i, l)));
+            }
+            (j, key, Arc::new(list))
+        })
+        .collect();
+    for (j, key, list) in built {
+        if let Some(slot) = vis.unit_slot(j) {
+            slot.store(key, list.clone());
+        }
+        out[j] = Some(list);
+    }
+    out
 }
 
 /// Irradiance of every light at every row, W/m^2 per channel (CPU backend). Each block
@@ -215,20 +289,24 @@ pub fn g_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
 /// ([`Visibility::for_each_visible`]), so a light that reaches few rows costs little;
 /// each row still sums its lights in their order, in f64.
 pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
+    let units = unit_lists(rows, vis, lights, false);
     let mut out = vec![[0.0f32; 3]; rows.len()];
     let block_rows = crate::rows::block_rows(rows.len());
     out.par_chunks_mut(block_rows).enumerate().for_each(|(bi, block)| {
         let base = bi * block_rows;
         let mut e = vec![[0.0f64; 3]; block.len()];
         for (j, l) in lights.iter().enumerate() {
-            vis.for_each_visible(j, base..base + block.len(), |i| {
-                let g = g(rows, i, l);
+            let mut add = |i: usize, g: f32| {
                 if g != 0.0 {
                     for c in 0..3 {
                         e[i - base][c] += l.rgb[c] as f64 * g as f64;
                     }
                 }
-            });
+            };
+            match &units[j] {
+                Some(list) => vis.for_each_visible_with(j, base..base + block.len(), list, |i, g| add(i, cut(g, l, &rows.sampling))),
+                None => vis.for_each_visible(j, base..base + block.len(), |i| add(i, g(rows, i, l))),
+            }
         }
         for (o, v) in block.iter_mut().zip(e) {
             *o = v.map(|x| x as f32);
@@ -329,11 +407,93 @@ mod tests {
                     bits[i >> 5] |= 1 << (i & 31);
                 }
             }
-            vis.bits.push(bits);
-            vis.traced_at.push(Vec3::ZERO);
-            vis.traced_reach.push(f32::INFINITY);
+            vis.push_traced(bits, Vec3::ZERO, f32::INFINITY);
         }
         vis
+    }
+
+    /// The irradiance row by row, every light's `g` computed afresh.
+    fn row_by_row(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
+        (0..rows.len())
+            .map(|i| {
+                let mut e = [0.0f64; 3];
+                for (j, l) in lights.iter().enumerate() {
+                    let g = if vis.visible(j, i) { g(rows, i, l) } else { 0.0 };
+                    if g != 0.0 {
+                        for c in 0..3 {
+                            e[c] += l.rgb[c] as f64 * g as f64;
+                        }
+                    }
+                }
+                e.map(|x| x as f32)
+            })
+            .collect()
+    }
+
+    /// The lights' cached unit factors give the irradiance to the bit: before the cache
+    /// fills, once it has, with intensities the falloff cut turns on (the cut is taken at
+    /// the current intensity), with a light moved, re-traced, removed, and through
+    /// `select` and `put_back`; a spot light among them.
+    #[test]
+    fn cached_unit_factors_give_the_irradiance_to_the_bit() {
+        let (_, mut rows) = crate::testutil::room(40);
+        rows.sampling.falloff = 0.02;
+        let n = rows.len();
+        let mut lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [0.05 + 0.3 * j as f32, 0.2, 0.1])).collect();
+        lights[3].spot = Some(Spot { axis: Vec3::new(0.3, -1.0, 0.2).normalize(), radius_by_dist: 0.8 });
+        let mut vis = patterned_visibility(n, lights.len());
+        let check = |vis: &Visibility, lights: &[Light], what: &str| assert!(irradiance(&rows, vis, lights) == row_by_row(&rows, vis, lights), "{what}");
+        // The evaluation sees the geometry, the linear fit's call fills the cache, the next
+        // evaluation reads it.
+        check(&vis, &lights, "before");
+        let filled = unit_lists(&rows, &vis, &lights, true);
+        assert!(filled.iter().all(Option::is_some), "every light cached on the second sight");
+        check(&vis, &lights, "cached");
+        let again = unit_lists(&rows, &vis, &lights, false);
+        assert!(again.iter().zip(&filled).all(|(a, b)| Arc::ptr_eq(a.as_ref().unwrap(), b.as_ref().unwrap())), "the same lists read back");
+        let cut_before = (0..n).filter(|&i| vis.visible(0, i) && g(&rows, i, &lights[0]) == 0.0 && g_uncut(&rows, i, &lights[0]) > 0.0).count();
+        lights[0].rgb = [0.01, 0.004, 0.002];
+        let cut_after = (0..n).filter(|&i| vis.visible(0, i) && g(&rows, i, &lights[0]) == 0.0 && g_uncut(&rows, i, &lights[0]) > 0.0).count();
+        assert!(cut_after > cut_before, "the dimmer light is cut on more rows ({cut_before} -> {cut_after})");
+        check(&vis, &lights, "a light dimmed below the falloff");
+        lights[2].pos.x += 0.01;
+        check(&vis, &lights, "a light moved");
+        let _ = unit_lists(&rows, &vis, &lights, true);
+        check(&vis, &lights, "a light moved, cached again");
+        let other = patterned_visibility(n, 2).bits[1].clone();
+        vis.set_traced(4, other, Vec3::ONE, 3.0);
+        check(&vis, &lights, "a light re-traced");
+        let _ = unit_lists(&rows, &vis, &lights, true);
+        check(&vis, &lights, "a light re-traced, cached again");
+        let part = vis.select(&[1, 3, 5]);
+        let part_lights = [lights[1], lights[3], lights[5]];
+        check(&part, &part_lights, "selected");
+        vis.put_back(&[1, 3, 5], part);
+        check(&vis, &lights, "put back");
+        vis.remove(2);
+        lights.remove(2);
+        check(&vis, &lights, "a light removed");
+    }
+
+    /// `for_each_visible_with` visits the rows `for_each_visible` does, each with its own
+    /// entry of the list, over any range.
+    #[test]
+    fn for_each_visible_with_pairs_rows_with_their_entries() {
+        let (_, rows) = crate::testutil::room(40);
+        let n = rows.len();
+        let lights: Vec<Light> = (0..3).map(|j| Light::point(Vec3::new(1.0 + j as f32, 1.2, 1.0), [1.0; 3])).collect();
+        let vis = patterned_visibility(n, 3);
+        let _ = unit_lists(&rows, &vis, &lights, false);
+        let lists = unit_lists(&rows, &vis, &lights, true);
+        for (j, l) in lights.iter().enumerate() {
+            let list = lists[j].as_ref().expect("cached on the second call");
+            for (a, b) in [(0, n), (5, 37), (31, 33), (64, 64), (1000, 2100), (n - 10, n), (1023, 1025)] {
+                let mut seen = Vec::new();
+                vis.for_each_visible_with(j, a..b, list, |i, g| seen.push((i, g)));
+                let want: Vec<(usize, f32)> = (a..b).filter(|&i| vis.visible(j, i)).map(|i| (i, g_uncut(&rows, i, l))).collect();
+                assert_eq!(seen, want, "light {j}, rows {a}..{b}");
+            }
+        }
     }
 
     /// The light-by-light loops give, bit for bit, what a row-by-row loop over every

@@ -17,8 +17,13 @@ use crate::trace::bvh::{Bvh, Occluder, EDGE_SLACK};
 
 #[derive(Debug, Clone, Default)]
 pub struct Visibility {
-    /// Bits per light, `words_per_light` u32 words each.
+    /// Bits per light, `words_per_light` u32 words each. Replaced through
+    /// [`Visibility::update`], [`Visibility::set_traced`] or [`Visibility::push_traced`],
+    /// which keep `units` in step.
     pub bits: Vec<Vec<u32>>,
+    /// Per light: the unit factors cached for its bits ([`UnitSlot`]); shared by clones,
+    /// replaced (never changed in place) when the light's bits change.
+    units: Vec<std::sync::Arc<UnitSlot>>,
     /// Light position at its last trace.
     pub traced_at: Vec<Vec3>,
     /// The reach it was traced to (rows farther away have their bit clear).
@@ -88,9 +93,11 @@ impl Visibility {
     /// one they were traced to; drops lights beyond `lights.len()`. Returns how many lights
     /// were traced.
     pub fn update(&mut self, lights: &[(Vec3, f32)], tolerance: f32, sampling: &Sampling, n_vertices: usize, trace: &mut dyn FnMut(&[(Vec3, f32)]) -> crate::error::Result<Vec<Vec<u32>>>) -> crate::error::Result<usize> {
+        self.units.resize_with(self.bits.len(), Default::default);
         self.bits.truncate(lights.len());
         self.traced_at.truncate(lights.len());
         self.traced_reach.truncate(lights.len());
+        self.units.truncate(lights.len());
         let stale: Vec<usize> = (0..lights.len())
             .filter(|&j| j >= self.bits.len() || (self.traced_at[j] - lights[j].0).length() > tolerance || reach(lights[j].1, sampling, 1.0) > self.traced_reach[j])
             .collect();
@@ -103,16 +110,67 @@ impl Visibility {
         self.rays += (n_vertices * stale.len()) as u64;
         for ((&j, words), &(_, r)) in stale.iter().zip(traced).zip(&batch) {
             if j < self.bits.len() {
-                self.bits[j] = words;
-                self.traced_at[j] = lights[j].0;
-                self.traced_reach[j] = r;
+                self.set_traced(j, words, lights[j].0, r);
             } else {
-                self.bits.push(words);
-                self.traced_at.push(lights[j].0);
-                self.traced_reach.push(r);
+                self.push_traced(words, lights[j].0, r);
             }
         }
         Ok(stale.len())
+    }
+
+    /// Light `j`'s bits as traced from `at` to `reach` (its cached unit factors dropped).
+    pub fn set_traced(&mut self, j: usize, bits: Vec<u32>, at: Vec3, reach: f32) {
+        self.units.resize_with(self.bits.len(), Default::default);
+        self.bits[j] = bits;
+        self.traced_at[j] = at;
+        self.traced_reach[j] = reach;
+        self.units[j] = Default::default();
+    }
+
+    /// A further light's bits, as traced from `at` to `reach`.
+    pub fn push_traced(&mut self, bits: Vec<u32>, at: Vec3, reach: f32) {
+        self.units.resize_with(self.bits.len(), Default::default);
+        self.bits.push(bits);
+        self.traced_at.push(at);
+        self.traced_reach.push(reach);
+        self.units.push(Default::default());
+    }
+
+    /// Light `j`'s cache of unit factors, where it has one (see [`UnitSlot`]).
+    pub fn unit_slot(&self, j: usize) -> Option<&UnitSlot> {
+        (self.units.len() == self.bits.len()).then(|| self.units.get(j)).flatten().map(|s| &**s)
+    }
+
+    /// [`Visibility::for_each_visible`] with each row's entry of `list`, light `light`'s
+    /// [`UnitList`] for its current bits: `f(row, value)`.
+    #[inline]
+    pub fn for_each_visible_with(&self, light: usize, rows: std::ops::Range<usize>, list: &UnitList, mut f: impl FnMut(usize, f32)) {
+        let bits = &self.bits[light];
+        if rows.is_empty() {
+            return;
+        }
+        let (w0, w1) = (rows.start >> 5, (rows.end + 31) >> 5);
+        // The list's index of the first row at or after `rows.start`: the count at the
+        // stretch's start, then the words (and bits) before it.
+        let first = (w0 / UNIT_STRETCH_WORDS) * UNIT_STRETCH_WORDS;
+        let mut k = list.stretch_start.get(w0 / UNIT_STRETCH_WORDS).copied().unwrap_or(0) as usize;
+        k += bits[first.min(bits.len())..w0.min(bits.len())].iter().map(|w| w.count_ones() as usize).sum::<usize>();
+        for w in w0..w1.min(bits.len()) {
+            let mut word = bits[w];
+            if w == w0 {
+                k += (word & !(u32::MAX << (rows.start & 31))).count_ones() as usize;
+                word &= u32::MAX << (rows.start & 31);
+            }
+            if w + 1 == w1 && rows.end & 31 != 0 {
+                word &= (1u32 << (rows.end & 31)) - 1;
+            }
+            while word != 0 {
+                let i = (w << 5) | word.trailing_zeros() as usize;
+                word &= word - 1;
+                f(i, list.values[k]);
+                k += 1;
+            }
+        }
     }
 
     /// The cache of the lights `js` only, in that order (the sun's bits with them).
@@ -121,6 +179,7 @@ impl Visibility {
             bits: js.iter().map(|&j| self.bits[j].clone()).collect(),
             traced_at: js.iter().map(|&j| self.traced_at[j]).collect(),
             traced_reach: js.iter().map(|&j| self.traced_reach[j]).collect(),
+            units: if self.units.len() == self.bits.len() { js.iter().map(|&j| self.units[j].clone()).collect() } else { Vec::new() },
             sun: self.sun.clone(),
             rays: 0,
         }
@@ -129,10 +188,13 @@ impl Visibility {
     /// Puts back what [`Visibility::select`] took out as `part` (its lights `js`, the sun),
     /// with the rays it traced since.
     pub fn put_back(&mut self, js: &[usize], part: Visibility) {
-        for ((&j, bits), (at, reach)) in js.iter().zip(part.bits).zip(part.traced_at.into_iter().zip(part.traced_reach)) {
+        let units = if part.units.len() == part.bits.len() { part.units.into_iter().map(Some).collect() } else { vec![None; js.len()] };
+        self.units.resize_with(self.bits.len(), Default::default);
+        for (((&j, bits), (at, reach)), unit) in js.iter().zip(part.bits).zip(part.traced_at.into_iter().zip(part.traced_reach)).zip(units) {
             self.bits[j] = bits;
             self.traced_at[j] = at;
             self.traced_reach[j] = reach;
+            self.units[j] = unit.unwrap_or_default();
         }
         self.sun = part.sun;
         self.rays += part.rays;
@@ -140,9 +202,61 @@ impl Visibility {
 
     /// Replaces the cache of light `j` (used when lights are reordered or removed).
     pub fn remove(&mut self, j: usize) {
+        self.units.resize_with(self.bits.len(), Default::default);
         self.bits.remove(j);
         self.traced_at.remove(j);
         self.traced_reach.remove(j);
+        self.units.remove(j);
+    }
+}
+
+/// Words of bits per stretch of a [`UnitList`]'s index (1024 rows).
+pub const UNIT_STRETCH_WORDS: usize = 32;
+
+/// One light's unit factor at each row its bits reach, in row order (for
+/// [`crate::model::lights`]: its `g` before the falloff cut, which depends on the
+/// intensity), computed for one geometry of the light (its [`UnitKey`]).
+#[derive(Debug, Default)]
+pub struct UnitList {
+    /// One per set bit, in row order.
+    pub values: Vec<f32>,
+    /// Per stretch of [`UNIT_STRETCH_WORDS`] words: the set bits before it.
+    pub stretch_start: Vec<u32>,
+}
+
+/// What a light's unit factors depend on besides its bits: its position and spot, and
+/// where it was traced from, to what reach, as exact bits.
+pub type UnitKey = [u32; 12];
+
+/// A light's cache of unit factors: filled the second time in a row that the same geometry
+/// asks (a light the phases move asks with a new one each time and never fills it; the
+/// linear fits of pruning, merging and the terms' decisions, over lights that stand still,
+/// ask again and again). Shared by the clones of a [`Visibility`], which is sound because
+/// the slot is replaced whenever the light's bits are.
+#[derive(Debug, Default)]
+pub struct UnitSlot {
+    state: std::sync::Mutex<(Option<UnitKey>, Option<(UnitKey, std::sync::Arc<UnitList>)>)>,
+}
+
+impl UnitSlot {
+    /// The list for `key`, if cached; else `None`, and whether it should be built now (the
+    /// same key asked before).
+    pub fn lookup(&self, key: &UnitKey) -> Result<std::sync::Arc<UnitList>, bool> {
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((k, list)) = &st.1 {
+            if k == key {
+                return Ok(list.clone());
+            }
+        }
+        let again = st.0.as_ref() == Some(key);
+        st.0 = Some(*key);
+        Err(again)
+    }
+
+    /// Keeps `list` as the cache for `key`.
+    pub fn store(&self, key: UnitKey, list: std::sync::Arc<UnitList>) {
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        st.1 = Some((key, list));
     }
 }
 
