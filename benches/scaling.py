@@ -35,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "python"))
 from gltf_io import accessor, read_glb  # noqa: E402
 
-STAGES = ["rows", "bases", "start", "optimise", "opt: traces", "opt: evaluating", "prune", "total"]
+STAGES = ["rows", "bases", "start", "optimise", "opt: traces", "opt: evaluating", "prune", "gamma", "total"]
 
 
 def with_lights(src: Path, n: int, dst: Path, seed: int = 1) -> None:
@@ -75,7 +75,8 @@ def relight(binary: str, src: Path, backend: str, extra: list[str], work: Path) 
     r = json.loads(rep.read_text())
     st = dict(r["stage_times_s"])
     out = {"rows": st.get("rows", 0.0), "bases": sum(v for k, v in st.items() if k.startswith("bases")),
-           "start": st.get("start", 0.0), "optimise": st.get("optimise", 0.0), "prune": sum(t for n, t in st.items() if n == "prune" or n.startswith("prune:")), "total": r["total_time_s"]}
+           "start": st.get("start", 0.0), "optimise": st.get("optimise", 0.0), "prune": sum(t for n, t in st.items() if n == "prune" or n.startswith("prune:")),
+           "gamma": st.get("gamma", 0.0), "total": r["total_time_s"]}
     # The optimise stage is the scheme's phases; of their time, what re-traced the shadows
     # of lights that moved (how often depends on the path, not on the size) and the rest.
     main = [p for p in r["phases"] if p["name"].startswith(f"{r['scheme']} phase")]
@@ -95,7 +96,7 @@ def exponent(xs: list[float], ys: list[float]) -> float | None:
 
 
 COLORS = {"rows": "#1f77b4", "bases": "#ff7f0e", "start": "#2ca02c", "optimise": "#d62728", "opt: traces": "#e377c2",
-          "opt: evaluating": "#8c564b", "prune": "#9467bd", "total": "#000000"}
+          "opt: evaluating": "#8c564b", "prune": "#9467bd", "gamma": "#bcbd22", "total": "#000000"}
 
 
 def svg_panel(x0: float, title: str, xlabel: str, series: dict, exps: dict) -> str:
@@ -201,6 +202,9 @@ def main() -> None:
           "Exponent k of time ~ size^k per stage (least squares on log-log, points above 20 ms; blank: too fast to fit). "
           "`optimise` is the scheme's phases, split into `opt: traces` (re-tracing the shadows of lights that moved: how "
           "often that happens depends on the fit's path) and `opt: evaluating` (the rest: the objective and its gradient); "
+          "`prune` is the stages after the phases (the terms' decisions, pruning, merging, the polish), `gamma` the one "
+          "after them: the final exact refit and the compile's gamma estimate (these starts are `--init input`, which "
+          "estimates it); "
           "the rows tables give the evaluations and the rays behind each:", "",
           "| sweep | backend | " + " | ".join(STAGES) + " |", "|---|---|" + "---:|" * len(STAGES)]
     for sweep in sweeps:
