@@ -239,8 +239,8 @@ pub struct UnitSlot {
 }
 
 impl UnitSlot {
-    /// The list for `key`, if cached; else `None`, and whether it should be built now (the
-    /// same key asked before).
+    /// The list for `key`, if cached; else `Err(again)`: whether the same key was asked
+    /// just before (then the caller may build it and [`UnitSlot::store`] it).
     pub fn lookup(&self, key: &UnitKey) -> Result<std::sync::Arc<UnitList>, bool> {
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((k, list)) = &st.1 {
