@@ -44,26 +44,8 @@ impl Visibility {
     /// order, 32 rows per word: a word with no bit set costs one test (a light whose
     /// reach or shadows leave most rows dark is skipped over them at once).
     #[inline]
-    pub fn for_each_visible(&self, light: usize, rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
-        let bits = &self.bits[light];
-        if rows.is_empty() {
-            return;
-        }
-        let (w0, w1) = (rows.start >> 5, (rows.end + 31) >> 5);
-        for w in w0..w1.min(bits.len()) {
-            let mut word = bits[w];
-            if w == w0 {
-                word &= u32::MAX << (rows.start & 31);
-            }
-            if w + 1 == w1 && rows.end & 31 != 0 {
-                word &= (1u32 << (rows.end & 31)) - 1;
-            }
-            while word != 0 {
-                let i = (w << 5) | word.trailing_zeros() as usize;
-                word &= word - 1;
-                f(i);
-            }
-        }
+    pub fn for_each_visible(&self, light: usize, rows: std::ops::Range<usize>, f: impl FnMut(usize)) {
+        each_set_bit(&self.bits[light], rows, f);
     }
 
     /// Whether the sun (as last traced) reaches `vertex`.
@@ -149,28 +131,17 @@ impl Visibility {
         if rows.is_empty() {
             return;
         }
-        let (w0, w1) = (rows.start >> 5, (rows.end + 31) >> 5);
-        // The list's index of the first row at or after `rows.start`: the count at the
-        // stretch's start, then the words (and bits) before it.
+        // The list's index of the first row at or after `rows.start`: the set bits before
+        // it, counted from the start of its stretch.
+        let w0 = rows.start >> 5;
         let first = (w0 / UNIT_STRETCH_WORDS) * UNIT_STRETCH_WORDS;
         let mut k = list.stretch_start.get(w0 / UNIT_STRETCH_WORDS).copied().unwrap_or(0) as usize;
         k += bits[first.min(bits.len())..w0.min(bits.len())].iter().map(|w| w.count_ones() as usize).sum::<usize>();
-        for w in w0..w1.min(bits.len()) {
-            let mut word = bits[w];
-            if w == w0 {
-                k += (word & !(u32::MAX << (rows.start & 31))).count_ones() as usize;
-                word &= u32::MAX << (rows.start & 31);
-            }
-            if w + 1 == w1 && rows.end & 31 != 0 {
-                word &= (1u32 << (rows.end & 31)) - 1;
-            }
-            while word != 0 {
-                let i = (w << 5) | word.trailing_zeros() as usize;
-                word &= word - 1;
-                f(i, list.values[k]);
-                k += 1;
-            }
-        }
+        k += bits.get(w0).map_or(0, |w| (w & !(u32::MAX << (rows.start & 31))).count_ones() as usize);
+        each_set_bit(bits, rows, |i| {
+            f(i, list.values[k]);
+            k += 1;
+        });
     }
 
     /// The cache of the lights `js` only, in that order (the sun's bits with them).
@@ -207,6 +178,30 @@ impl Visibility {
         self.traced_at.remove(j);
         self.traced_reach.remove(j);
         self.units.remove(j);
+    }
+}
+
+/// Calls `f(row)` for every set bit of `bits` in `rows`, in ascending order, 32 rows per
+/// word (a word with no bit set costs one test).
+#[inline]
+fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
+    if rows.is_empty() {
+        return;
+    }
+    let (w0, w1) = (rows.start >> 5, (rows.end + 31) >> 5);
+    for w in w0..w1.min(bits.len()) {
+        let mut word = bits[w];
+        if w == w0 {
+            word &= u32::MAX << (rows.start & 31);
+        }
+        if w + 1 == w1 && rows.end & 31 != 0 {
+            word &= (1u32 << (rows.end & 31)) - 1;
+        }
+        while word != 0 {
+            let i = (w << 5) | word.trailing_zeros() as usize;
+            word &= word - 1;
+            f(i);
+        }
     }
 }
 
