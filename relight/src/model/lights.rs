@@ -505,20 +505,7 @@ mod tests {
         assert!(n > 2 * crate::rows::block_rows(n) && n % 32 != 0, "{n} rows: several blocks, a partial word");
         let lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [1.0 + j as f32, 2.0, 0.5])).collect();
         let vis = patterned_visibility(n, lights.len());
-        let reference: Vec<[f32; 3]> = (0..n)
-            .map(|i| {
-                let mut e = [0.0f64; 3];
-                for (j, l) in lights.iter().enumerate() {
-                    if vis.visible(j, i) {
-                        let g = g(&rows, i, l);
-                        for c in 0..3 {
-                            e[c] += l.rgb[c] as f64 * g as f64;
-                        }
-                    }
-                }
-                e.map(|v| v as f32)
-            })
-            .collect();
+        let reference = row_by_row(&rows, &vis, &lights);
         assert_eq!(irradiance(&rows, &vis, &lights), reference);
         assert!(reference.iter().filter(|e| e[0] > 0.0).count() > n / 2);
         // The gradient against a row-by-row sum, per light and block as the loop sums.
