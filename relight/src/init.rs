@@ -258,10 +258,29 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             use rayon::prelude::*;
             // The same rows stay the most unexplained for several rounds, so the same
             // candidates come back (on oa_dm1 307 distinct of 3025): their shadow rays are
-            // traced once.
-            let fresh: Vec<Vec3> = cands.iter().map(|c| c.0).filter(|p| !visible.contains_key(&key(*p))).collect();
-            let traced: Vec<Vec<u32>> = fresh.par_iter().map(|&p| visibility::trace_light(bvh, &sub, p, f32::INFINITY)).collect();
-            visible.extend(fresh.iter().map(|p| key(*p)).zip(traced));
+            // traced once. The new ones over one row are traced one after the other, each
+            // trying first what stopped the rays of the one below it (the heights over a
+            // row mostly meet the same walls; the same bits): the rows in parallel.
+            let mut over_row: Vec<Vec<Vec3>> = vec![Vec::new(); picked.len()];
+            for &(p, k) in &cands {
+                if !visible.contains_key(&key(p)) && !over_row[k].iter().any(|q| key(*q) == key(p)) {
+                    over_row[k].push(p);
+                }
+            }
+            let traced: Vec<Vec<(Vec3, Vec<u32>)>> = over_row
+                .par_iter()
+                .map(|ps| {
+                    let mut prior: Option<Vec<u64>> = None;
+                    ps.iter()
+                        .map(|&p| {
+                            let (bits, stopped) = visibility::trace_light_hinted(bvh, &sub, p, f32::INFINITY, prior.as_deref());
+                            prior = Some(stopped);
+                            (p, bits)
+                        })
+                        .collect()
+                })
+                .collect();
+            visible.extend(traced.into_iter().flatten().map(|(p, bits)| (key(p), bits)));
             let visible = &visible;
             cands
                 .par_iter()
