@@ -115,8 +115,9 @@ pub struct RelightArgs {
     /// written as emissive materials.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub surfaces: String,
-    /// q3map2's dirt (`-dirt`: ambient occlusion multiplied in): `auto` as the recorded
-    /// compile says, else where it lowers the error.
+    /// q3map2's dirt (`-dirty`: ambient occlusion multiplied in): `auto` as the recorded
+    /// compile says (with its `-dirtdepth`, `-dirtscale`, `-dirtgain`), else where it
+    /// lowers the error, its depth chosen by the data among 32, 64 and 128 units.
     #[arg(long, default_value = "auto", value_parser = ["auto", "on", "off"])]
     pub dirt: String,
     /// q3map2's lightmap filter (`-filter`: a 3x3 blur of each light): as `--dirt`.

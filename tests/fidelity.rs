@@ -101,8 +101,10 @@ fn globals_fit_with(dir: &Path, name: &str, bsp: &str, source: &Path, game_dirs:
 /// 0.0018 -> 0, minlight 0.0013 -> 0, compensate 0.0010 -> 0, dirt 0.0049 -> 0.0046; skylight
 /// 0.0202 -> 0.0231 (its bytes are 0-3: three wall luxels one byte lit where a sun passes
 /// within the slack of a chimney piece's rim, a tie the bright fixture's compile of the
-/// same geometry settles the other way); bounce, combo, filter, pad the same.
-const FIXTURES: [(&str, f64, &[&str]); 25] = [
+/// same geometry settles the other way); bounce, combo, filter, pad the same; on 2026-11-28,
+/// dirt_depth 0.0050 and dirt_shaped 0.0142 (its dirt darker by its scale and gain, each
+/// luxel's factor within 0.0037 of q3map2's on average: `dirt_factors_are_q3map2s_own`).
+const FIXTURES: [(&str, f64, &[&str]); 27] = [
     ("point", 0.005, &[]),
     ("pillar", 0.005, &[]),
     ("offgrid", 0.004, &[]),
@@ -122,6 +124,8 @@ const FIXTURES: [(&str, f64, &[&str]); 25] = [
     ("skylight_bright", 0.005, &[]),
     ("bounce", 0.02, &["bounce"]),
     ("dirt", 0.01, &["dirt"]),
+    ("dirt_depth", 0.01, &["dirt"]),
+    ("dirt_shaped", 0.02, &["dirt"]),
     ("filter", 0.005, &["filter"]),
     ("gamma", 0.005, &[]),
     ("compensate", 0.01, &[]),
@@ -152,9 +156,14 @@ fn q3map2_fixtures_are_reproduced_by_the_model() {
         for term in switched {
             let on = match *term {
                 "bounce" => r["bounce"].is_array(),
+                "dirt" => r["dirt"].is_object(),
                 t => r[t] == true,
             };
             assert!(on, "{name}: the recorded compile switches {term} on, the model has it off: {}", r["terms"]);
+        }
+        // The dirt's settings are the recorded ones.
+        if let Some(want) = recorded_dirt(name) {
+            assert_eq!(dirt_settings(&r), Some(want), "{name}: {}", r["dirt"]);
         }
         // The lamp's quarters emit from q3map2's own mesh of them, which convert recorded.
         if name == "lamp" {
@@ -257,45 +266,107 @@ fn bsp_lightmaps(path: &Path) -> Vec<u8> {
     b[off..off + len].to_vec()
 }
 
-/// The dirt factor of every luxel, against q3map2's own: the `dirt_debug` fixture is the
+/// The dirt settings a fixture's recorded compile gives: (depth in units, scale, gain).
+fn recorded_dirt(name: &str) -> Option<(f32, f32, f32)> {
+    match name {
+        "dirt" | "combo" => Some((128.0, 1.0, 1.0)),
+        "dirt_depth" => Some((64.0, 1.0, 1.0)),
+        "dirt_shaped" => Some((48.0, 1.5, 0.8)),
+        _ => None,
+    }
+}
+
+/// A report's dirt settings: (depth in units, scale, gain; the f32 the model holds),
+/// `None` without dirt.
+fn dirt_settings(r: &Value) -> Option<(f32, f32, f32)> {
+    let d = &r["dirt"];
+    Some((d["depth_units"].as_f64()? as f32, d["scale"].as_f64()? as f32, d["gain"].as_f64()? as f32))
+}
+
+/// The dirt factor of every luxel, against q3map2's own: each `*_debug` fixture is its
 /// dirt fixture compiled with `-dirtdebug` (q3map2 writes 255 x its factor as the
-/// lightmap) and `-nocollapse` (the same pages). convert puts a one-texel border around a
-/// page, so texel (x, y) of ours is (x - 1, y - 1) of the BSP's.
-/// Measured on 2026-11-23: mean difference 0.0026, 99.4% of the luxels within 0.05. The
-/// edge rows where a face meets a wall sit on the wall's plane: they see it at distance 0
-/// (with the rays started at the sample instead, the mean was 0.038), and q3map2's BSP
-/// trace also stops the rays along a wall whose solid is on its positive side
-/// (`SolidAhead`; without that, 0.0129 and 87.6%: the corners).
+/// lightmap) and `-nocollapse` (the same pages); `dirt` at q3map2's default settings,
+/// `dirt_shaped` with every setting away from its default (`-dirtdepth 48 -dirtscale 1.5
+/// -dirtgain 0.8`). convert puts a one-texel border around a page, so texel (x, y) of ours
+/// is (x - 1, y - 1) of the BSP's.
+/// Measured on 2026-11-23 (`dirt`): mean difference 0.0026, 99.4% of the luxels within
+/// 0.05. The edge rows where a face meets a wall sit on the wall's plane: they see it at
+/// distance 0 (with the rays started at the sample instead, the mean was 0.038), and
+/// q3map2's BSP trace also stops the rays along a wall whose solid is on its positive side
+/// (`SolidAhead`; without that, 0.0129 and 87.6%: the corners). On 2026-11-28,
+/// `dirt_shaped`: mean 0.0037, 98.9% within 0.05.
 #[test]
 fn dirt_factors_are_q3map2s_own() {
-    let dir = tmp("dirt_debug");
-    let bsp = fixtures().join("maps/dirt.bsp");
-    let source = fixtures().join("maps/dirt.map");
-    let dump = dir.join("rows.csv");
-    globals_fit_with(&dir, "dirt", bsp.to_str().unwrap(), &source, &[common::baseoa(), &fixtures()], &["--dump-rows", dump.to_str().unwrap()]);
-    let truth = bsp_lightmaps(&fixtures().join("maps/dirt_debug.bsp"));
-    assert_eq!(truth.len(), 128 * 128 * 3, "one page");
-    let text = std::fs::read_to_string(&dump).unwrap();
-    let mut lines = text.lines();
-    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
-    let (ctx, cty, cdirt) = (col("tx"), col("ty"), col("dirt"));
-    let mut diffs = Vec::new();
-    for line in lines {
-        let f: Vec<&str> = line.split(',').collect();
-        let (x, y): (usize, usize) = (f[ctx].parse().unwrap(), f[cty].parse().unwrap());
-        let ours: f64 = f[cdirt].parse().unwrap();
-        assert!((1..=128).contains(&x) && (1..=128).contains(&y), "texel ({x}, {y}) outside the page");
-        let q3 = truth[((y - 1) * 128 + (x - 1)) * 3] as f64 / 255.0;
-        assert!(q3 > 0.0, "texel ({x}, {y}): q3map2 mapped no luxel there");
-        diffs.push((ours - q3).abs());
+    for (lit, debug) in [("dirt", "dirt_debug"), ("dirt_shaped", "dirt_shaped_debug")] {
+        let dir = tmp(debug);
+        let bsp = fixtures().join(format!("maps/{lit}.bsp"));
+        let source = fixtures().join(format!("maps/{lit}.map"));
+        let dump = dir.join("rows.csv");
+        globals_fit_with(&dir, lit, bsp.to_str().unwrap(), &source, &[common::baseoa(), &fixtures()], &["--dump-rows", dump.to_str().unwrap()]);
+        let truth = bsp_lightmaps(&fixtures().join(format!("maps/{debug}.bsp")));
+        assert_eq!(truth.len(), 128 * 128 * 3, "{debug}: one page");
+        let text = std::fs::read_to_string(&dump).unwrap();
+        let mut lines = text.lines();
+        let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
+        let (ctx, cty, cdirt) = (col("tx"), col("ty"), col("dirt"));
+        let mut diffs = Vec::new();
+        for line in lines {
+            let f: Vec<&str> = line.split(',').collect();
+            let (x, y): (usize, usize) = (f[ctx].parse().unwrap(), f[cty].parse().unwrap());
+            let ours: f64 = f[cdirt].parse().unwrap();
+            assert!((1..=128).contains(&x) && (1..=128).contains(&y), "{debug}: texel ({x}, {y}) outside the page");
+            let q3 = truth[((y - 1) * 128 + (x - 1)) * 3] as f64 / 255.0;
+            assert!(q3 > 0.0, "{debug}: texel ({x}, {y}): q3map2 mapped no luxel there");
+            diffs.push((ours - q3).abs());
+        }
+        let n = diffs.len() as f64;
+        let mean = diffs.iter().sum::<f64>() / n;
+        let within = diffs.iter().filter(|d| **d <= 0.05).count() as f64 / n;
+        eprintln!("{debug}: dirt against q3map2's: {} luxels, mean difference {mean:.4}, {:.1}% within 0.05", diffs.len(), 100.0 * within);
+        assert!(diffs.len() >= 4700, "{debug}: every luxel, the faces' edge rows included: {}", diffs.len());
+        assert!(mean <= 0.006 && within >= 0.97, "{debug}: mean {mean:.4}, within 0.05: {within:.3}");
     }
-    let n = diffs.len() as f64;
-    let mean = diffs.iter().sum::<f64>() / n;
-    let within = diffs.iter().filter(|d| **d <= 0.05).count() as f64 / n;
-    eprintln!("dirt against q3map2's: {} luxels, mean difference {mean:.4}, {:.1}% within 0.05", diffs.len(), 100.0 * within);
-    assert!(diffs.len() >= 4700, "every luxel, the faces' edge rows included: {}", diffs.len());
-    assert!(mean <= 0.006 && within >= 0.97, "mean {mean:.4}, within 0.05: {within:.3}");
+}
+
+/// A copy of a fixture's BSP in `dir` with its compile record hidden, as the OACMP maps
+/// ship: the key `_q3map2_cmdline` renamed to one of the same length that nothing reads
+/// (the entity lump keeps its size, so every offset stands).
+fn without_record(dir: &Path, name: &str) -> PathBuf {
+    let mut b = std::fs::read(fixtures().join(format!("maps/{name}.bsp"))).unwrap();
+    let key = b"\"_q3map2_cmdline\"";
+    let at = b.windows(key.len()).position(|w| w == key).unwrap_or_else(|| panic!("{name}: no compile record"));
+    b[at + key.len() - 2] = b'X';
+    assert!(!b.windows(key.len()).any(|w| w == key));
+    let out = dir.join(format!("{name}_unrecorded.bsp"));
+    std::fs::write(&out, b).unwrap();
+    out
+}
+
+/// Where no compile is recorded, the data decides the dirt and its depth among
+/// `DIRT_DEPTHS_UNITS`: the fixture lit at depth 64 is fitted at 64, the one at q3map2's
+/// default at 128, and a map lit without dirt has none. Measured on 2026-11-28: 0.0050,
+/// 0.0046 and 0.0000.
+#[test]
+fn the_dirt_and_its_depth_are_estimated_where_no_compile_is_recorded() {
+    let dir = tmp("unrecorded");
+    let mut failures = Vec::new();
+    for (name, want, bound) in [("dirt_depth", Some(64.0), 0.01), ("dirt", Some(128.0), 0.01), ("pillar", None, 0.01)] {
+        let bsp = without_record(&dir, name);
+        let source = fixtures().join(format!("maps/{name}.map"));
+        let r = globals_fit(&dir, name, bsp.to_str().unwrap(), &source, &[common::baseoa(), &fixtures()]);
+        assert!(r["compile_cmdline"].is_null(), "{name}: the record is still read: {}", r["compile_cmdline"]);
+        let err = r["rel_error_final"].as_f64().unwrap();
+        let got = dirt_settings(&r);
+        eprintln!("{name:10} {err:.4} (bound {bound}), dirt {got:?}");
+        if got.map(|d| d.0) != want || got.is_some_and(|d| (d.1, d.2) != (1.0, 1.0)) {
+            failures.push(format!("{name}: dirt {got:?}, want depth {want:?}: {}", r["terms"]));
+        }
+        if !(err <= bound) {
+            failures.push(format!("{name}: relative error {err:.4} > {bound}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
 }
 
 /// (map, largest relative error): the shipped BSPs of the truth set with their own source
@@ -310,9 +381,11 @@ fn dirt_factors_are_q3map2s_own() {
 /// the compile's gamma estimated (`rows::gamma`; the error against the stored bytes):
 /// 0.1562 (gamma 1.25), 0.0585, 0.1516, 0.1053, 0.0705 (gamma 1.375); on 2026-11-27
 /// (seventh), with q3map2's own pieces stopping the shadow rays: 0.1541 (gamma 1.25),
-/// 0.0582, 0.1474, 0.1055, 0.0715 (gamma 1.375). The third figure is the range of the
-/// estimated gamma.
-const TRUTH_SET: [(&str, f64, (f64, f64)); 5] = [("oacmpdm1", 0.175, (1.125, 1.375)), ("oacmpdm2", 0.075, (1.0, 1.0)), ("oacmpdm3", 0.17, (1.0, 1.0)), ("oacmpdm4", 0.125, (1.0, 1.0)), ("oacmpctf1", 0.085, (1.25, 1.5))];
+/// 0.0582, 0.1474, 0.1055, 0.0715 (gamma 1.375); on 2026-11-28, with the dirt's depth
+/// estimated where no compile records it (`model::compile::DIRT_DEPTHS_UNITS`): 0.1484
+/// (gamma 1.25, depth 32), 0.0582, 0.1474, 0.1055, 0.0662 (gamma 1.25, depth 128). The
+/// third figure is the range of the estimated gamma.
+const TRUTH_SET: [(&str, f64, (f64, f64)); 5] = [("oacmpdm1", 0.16, (1.125, 1.375)), ("oacmpdm2", 0.075, (1.0, 1.0)), ("oacmpdm3", 0.16, (1.0, 1.0)), ("oacmpdm4", 0.125, (1.0, 1.0)), ("oacmpctf1", 0.08, (1.25, 1.5))];
 
 #[test]
 fn truth_set_maps_with_their_source_lights() {

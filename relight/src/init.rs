@@ -253,7 +253,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
         // Score: error removed by the best non-negative intensity per channel (the
         // candidate's light through the dirt factor; filter and bounce are not on the
         // subsample).
-        let dirt = if fit.model.dirt { sub_bases.dirt.as_deref() } else { None };
+        let dirt = sub_bases.dirt_of(&fit.model);
         let scored: Vec<Scored> = {
             use rayon::prelude::*;
             // The same rows stay the most unexplained for several rounds, so the same

@@ -365,7 +365,8 @@ pub struct Report {
     /// How the bounce's transport was traced: rows, rays per row, rays that landed on one
     /// of q3map2's bounce lights, and those pieces ([`model::bounce::pieces`]).
     pub bounce_transport: Option<model::bounce::GatherStats>,
-    pub dirt: bool,
+    /// q3map2's dirt and its settings, where the model has it.
+    pub dirt: Option<model::compile::DirtSettings>,
     pub filter: bool,
     /// The decision on every optional term.
     pub terms: Vec<TermReport>,
@@ -524,11 +525,37 @@ struct TermPlan {
     bounce: Optional,
     bounces: usize,
     dirt: Optional,
+    /// The dirt settings the data chooses among (the recorded compile's alone).
+    dirt_sets: Vec<model::compile::DirtSettings>,
     filter: Optional,
     /// q3map2's `-fast` for area lights.
     fast_area: bool,
     /// q3map2's `-fast` (or `-fastbounce`) for its bounce lights ([`model::bounce::pieces`]).
     fast_bounce: bool,
+}
+
+/// The dirt settings a run considers: the recorded compile's, or else q3map2's scale and
+/// gain at each of [`model::compile::DIRT_DEPTHS_UNITS`] (the data chooses the depth),
+/// with the settings a relit file states where they are not among those.
+fn dirt_sets(scene: &Scene) -> Vec<model::compile::DirtSettings> {
+    use model::compile::{DirtSettings, DIRT_DEPTHS_UNITS};
+    if scene.compile.cmdline.is_some() {
+        return vec![scene.compile.dirt_settings()];
+    }
+    let mut sets: Vec<DirtSettings> = DIRT_DEPTHS_UNITS.iter().map(|&d| DirtSettings { depth_units: d, ..DirtSettings::Q3MAP2 }).collect();
+    if let Some(s) = scene.relit.as_ref().and_then(|r| r.dirt) {
+        if !sets.contains(&s) {
+            sets.push(s);
+        }
+    }
+    sets
+}
+
+/// The dirt settings a model starts with when its dirt is on from the start: q3map2's
+/// defaults where they are among `sets`, else the first.
+fn first_dirt(sets: &[model::compile::DirtSettings]) -> Option<model::compile::DirtSettings> {
+    let d = model::compile::DirtSettings::Q3MAP2;
+    sets.iter().copied().find(|s| *s == d).or(sets.first().copied())
 }
 
 /// The compile's settings where recorded (`_q3map2_cmdline`), the options otherwise.
@@ -560,6 +587,7 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
         // q3map2's switch is `-dirty`; `-dirt`, which many OpenArena maps record, is not one
         // (q3map2 warns "Unknown argument" and lights without dirt).
         dirt: from_record(opts.dirt, c.has("-dirty")),
+        dirt_sets: dirt_sets(scene),
         filter: from_record(opts.filter, c.has("-filter")),
         // q3map2's `-faster` switches `-fast` on too.
         fast_area: c.has("-fast") || c.has("-faster"),
@@ -597,10 +625,7 @@ fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::
     st.done("bases: surfaces");
     let luxels = rows.texel.iter().any(|t| t[0] != u32::MAX);
     let nb = if luxels && (plan.dirt != Optional::Off || plan.filter != Optional::Off) { model::compile::neighbours(rows) } else { vec![Vec::new(); rows.len()] };
-    let dirt = (plan.dirt != Optional::Off).then(|| {
-        use crate::scene::q3map2::DIRT_DEPTH_UNITS;
-        model::compile::dirt(rows, bvh, &nb, &model::compile::DirtSettings { depth: DIRT_DEPTH_UNITS * scene.units_m, scale: 1.0, gain: 1.0 })
-    });
+    let dirt = if plan.dirt != Optional::Off { model::compile::dirt(rows, bvh, &nb, &plan.dirt_sets, scene.units_m as f32) } else { Vec::new() };
     let filter = (plan.filter != Optional::Off && luxels).then(|| model::compile::filter(rows, &nb));
     st.done("bases: dirt, filter");
     let bounce_rays = if bounce_rays == 0 { model::bounce::rays_for(rows.len()) } else { bounce_rays };
@@ -632,7 +657,7 @@ fn declared_model(scene: &Scene, bases: &Bases, plan: &TermPlan) -> Model {
     let surfaces = bases.surfaces.groups.iter().map(|g| Some(g.source_rgb)).collect();
     let minlight = scene.compile.minlight.map(|m| m.map(|v| v * e_irr));
     let ambient = scene.compile.ambient.map(|a| a.map(|v| v * e_irr));
-    Model { lights: Vec::new(), sun, sky: sky.filter(|k| k[0] > 0.0), surfaces, ambient, bounce: None, minlight, gathered: None, dirt: false, filter: false }
+    Model { lights: Vec::new(), sun, sky: sky.filter(|k| k[0] > 0.0), surfaces, ambient, bounce: None, minlight, gathered: None, dirt: None, filter: false }
 }
 
 /// The model's lightmap of a scene: one luxel row per lightmap texel, as relight fits
@@ -669,7 +694,8 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
         surfaces: if model.surfaces.iter().any(Option::is_some) { Optional::On } else { Optional::Off },
         bounce: if model.bounce.is_some() && bounces > 0 { Optional::On } else { Optional::Off },
         bounces,
-        dirt: if model.dirt { Optional::On } else { Optional::Off },
+        dirt: if model.dirt.is_some() { Optional::On } else { Optional::Off },
+        dirt_sets: model.dirt.into_iter().collect(),
         filter: if model.filter { Optional::On } else { Optional::Off },
         fast_area: false,
         fast_bounce: false,
@@ -762,7 +788,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let (mut terms, mut compile_note) = plan_terms(opts, &scene);
     if tracing.is_some() {
         // The thesis's model: point lights and their traced bounces, nothing else.
-        terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false };
+        terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, dirt_sets: Vec::new(), filter: Optional::Off, fast_area: false, fast_bounce: false };
         compile_note = "--estimator tracing: point lights and their traced bounces only (the thesis's model)".into();
     }
     let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, opts.init == Init::Auto, &mut st);
@@ -779,7 +805,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     // The map's own emitters, then the switches the recorded compile fixes.
     progress.stage("init");
     let mut start = if tracing.is_some() { Model::default() } else { declared_model(&scene, &bases, &terms) };
-    start.dirt = terms.dirt == Optional::On;
+    start.dirt = if terms.dirt == Optional::On { first_dirt(&terms.dirt_sets) } else { None };
     start.filter = terms.filter == Optional::On;
     if terms.bounce != Optional::Off && bases.bounce.is_some() {
         start.bounce = Some([1.0; 3]);
@@ -1064,7 +1090,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         "minlight": m.minlight,
         "bounce_scale": m.bounce,
         "bounces": bases.bounces,
-        "dirt": m.dirt,
+        "dirt": m.dirt.is_some(),
+        "dirt_settings": m.dirt,
         "filter": m.filter,
         "lights_are": if m.bounce.is_some() { "direct light only: render with global illumination" } else { "direct and bounced light together" },
         // The picture the lights reproduce: "lightmap" (show it like the game through
@@ -1178,9 +1205,9 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, out: &mut Vec<TermReport>) {
     type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
     // Per term: its name, the plan's choice, how to switch it on or off from the entry,
-    // and another way to switch it on, tried too where it differs (the better is the
-    // term's case).
-    let mut list: Vec<(String, Optional, Set, Option<Set>)> = Vec::new();
+    // and other ways to switch it on, each tried too where it differs, with what another
+    // way must lower the error by to replace the first (the best is the term's case).
+    let mut list: Vec<(String, Optional, Set, Vec<Set>, f64)> = Vec::new();
     if fit.bases.bounce.is_some() {
         // The bounce's factor is not a linear coefficient: the phases may have taken it
         // near zero (the ambient standing in for it) before the exact fits could weigh it.
@@ -1191,24 +1218,32 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
             "bounce".into(),
             terms.bounce,
             Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None }),
-            Some(Box::new(|m, _, on| m.bounce = on.then_some([1.0; 3]))),
+            vec![Box::new(|m, _, on| m.bounce = on.then_some([1.0; 3]))],
+            0.0,
         ));
     }
-    if fit.bases.dirt.is_some() {
-        list.push(("dirt".into(), terms.dirt, Box::new(|m, _, on| m.dirt = on), None));
+    if let Some(first) = first_dirt(&terms.dirt_sets).filter(|_| !fit.bases.dirt.is_empty()) {
+        // Each depth the data chooses among is another way to switch it on. Another depth
+        // than the entry's (q3map2's default where the entry has no dirt) is one more
+        // fitted number, and must earn its place as a term does, whatever the gain asked
+        // of the terms: oacmpctf1 with its source lights, free to take any depth, took 64
+        // at the stored reading, which then stood in for its gamma (0.0741, gamma 1;
+        // 0.0715 with depth 128 and gamma 1.375).
+        let others: Vec<Set> = terms.dirt_sets.iter().filter(|&&s| s != first).map(|&s| Box::new(move |m: &mut Model, _: &Model, on: bool| m.dirt = on.then_some(s)) as Set).collect();
+        list.push(("dirt".into(), terms.dirt, Box::new(move |m, e, on| m.dirt = if on { e.dirt.or(Some(first)) } else { None }), others, TERM_GAIN));
     }
     if fit.bases.filter.is_some() {
-        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on), None));
+        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on), Vec::new(), 0.0));
     }
     if opts.fit == FitMode::All {
         if fit.model.sun.is_some() {
-            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None }), None));
+            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None }), Vec::new(), 0.0));
         }
         if fit.bases.sky.is_some() {
-            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None }), None));
+            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None }), Vec::new(), 0.0));
         }
         for (s, g) in fit.bases.surfaces.groups.clone().iter().enumerate() {
-            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None }), None));
+            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None }), Vec::new(), 0.0));
         }
     }
     // The ambient is the catch-all: a constant that stands in, in part, for any term that
@@ -1218,7 +1253,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
     // was kept: 0.1581; weighed without it, the bounce is kept and the ambient not
     // needed: 0.1543.
     let entry_ambient = fit.model.ambient;
-    list.push(("ambient".into(), Optional::Auto, Box::new(move |m, _, on| m.ambient = if on { entry_ambient.or(Some([1e-6; 3])) } else { None }), None));
+    list.push(("ambient".into(), Optional::Auto, Box::new(move |m, _, on| m.ambient = if on { entry_ambient.or(Some([1e-6; 3])) } else { None }), Vec::new(), 0.0));
     // Which terms a model has on (the lights aside).
     let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
     // The entry's error as the phases saw it (their visibility; the value only).
@@ -1233,7 +1268,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
     let mut current = fit.fit_linear();
     // The lowest error the decisions have reached (what the allowance is counted from).
     let mut lowest = current;
-    for (name, choice, set, also_on) in list {
+    for (name, choice, set, others, other_gain) in list {
         if fit.out_of_time() {
             break;
         }
@@ -1256,27 +1291,36 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
         }
         let without = variant(&set, false, fit);
         let mut with = variant(&set, true, fit);
-        if let Some(also) = &also_on {
-            let (mut a, mut b) = (entry.clone(), entry.clone());
-            set(&mut a, &entry, true);
+        // The best other way, which replaces the first where it is lower by the gain asked.
+        let mut first_on = entry.clone();
+        set(&mut first_on, &entry, true);
+        let mut best_other: Option<(f64, Model, crate::trace::visibility::Visibility)> = None;
+        for also in &others {
+            let mut b = entry.clone();
             also(&mut b, &entry, true);
-            if a != b {
+            if b != first_on {
                 let other = variant(also, true, fit);
-                if other.0 < with.0 {
-                    with = other;
+                if best_other.as_ref().is_none_or(|o| other.0 < o.0) {
+                    best_other = Some(other);
                 }
             }
+        }
+        if let Some(other) = best_other.filter(|o| o.0 < with.0 - other_gain) {
+            with = other;
         }
         lowest = lowest.min(with.0).min(without.0);
         let gains = with.0 < without.0 - gain;
         let allowance_spent = with.0 < without.0 && without.0 > lowest + gain;
         let keep = choice == Optional::On || gains || allowance_spent;
-        let note = match (choice, keep) {
+        let mut note = match (choice, keep) {
             (Optional::On, _) => "on (asked, or the recorded compile)".to_string(),
             (_, true) if gains => "kept: lowers the error".into(),
             (_, true) => "kept: leaving it out too would take the error past the allowance for the terms left out".into(),
             (_, false) => "not used: does not lower the error enough".into(),
         };
+        if let (true, Some(d)) = (keep, with.1.dirt.filter(|_| name == "dirt")) {
+            note.push_str(&format!(" (depth {} units, scale {}, gain {})", d.depth_units, d.scale, d.gain));
+        }
         out.push(TermReport { term: name, kept: keep, rel_error_without: without.0, rel_error_with: with.0, note });
         let chosen = if keep { with } else { without };
         (current, fit.model, fit.vis) = chosen;
@@ -1373,6 +1417,13 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
         decide_terms(fit, terms, opts, TERM_GAIN, &mut reports);
         reports
     };
+    // The readings are compared with the dirt at one depth, the entry's where no other was
+    // estimated (q3map2's default): a shorter dirt and a gamma both lift the dim luxels,
+    // and a depth chosen at the stored reading stood in for the gamma there (oacmpctf1
+    // with its source lights: depth 64 and gamma 1, 0.0741, where depth 128 and gamma
+    // 1.375 reach 0.0715). The adopted reading chooses its depth when it settles.
+    let first = first_dirt(&terms.dirt_sets);
+    let compared = TermPlan { dirt_sets: first.into_iter().collect(), ..terms.clone() };
     // One candidate: its rows, the fit on them, the error against the stored bytes.
     let try_gamma = |g: f64, fit: &mut Fitter<'a>| -> Option<(f64, Rows, Model, crate::trace::visibility::Visibility)> {
         let rows_g = crate::rows::gamma::regraded(stored, g, e_full);
@@ -1387,7 +1438,7 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
             // (a column per kind through the chain, not per light: on oa_dm1's 59 lights
             // the per-light columns took 18 s over three readings, for no gain).
             t.kind_scales = true;
-            let entry = Model { ambient: t.model.ambient.or(Some([1e-6; 3])), ..t.model.clone() };
+            let entry = Model { ambient: t.model.ambient.or(Some([1e-6; 3])), dirt: t.model.dirt.and(first), ..t.model.clone() };
             let mut variants = vec![entry.clone()];
             if bounce_allowed {
                 for b in [Some([1.0f32; 3]), None] {
@@ -1408,7 +1459,7 @@ fn estimate_gamma<'a>(fit: &mut Fitter<'a>, regraded: &'a std::cell::OnceCell<Ro
             // Then every term that lowers the error at all (dirt, say, may pay in one
             // reading and not in another).
             (t.model, t.vis) = (m, v);
-            decide_terms(t, terms, opts, 0.0, &mut Vec::new());
+            decide_terms(t, &compared, opts, 0.0, &mut Vec::new());
             (t.model.clone(), t.vis.clone())
         });
         let x = model::radiance(&model, &rows_g, fit.bases, &vis, &mut *fit.backend).ok()?;
@@ -1560,6 +1611,8 @@ fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, 
     let only_lights = model::radiance(&Model { lights: m.lights.clone(), ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_sky = model::radiance(&Model { sun: m.sun, sky: m.sky, ..bare.clone() }, rows, bases, &fit.vis, &mut *fit.backend)?;
     let only_surfaces = model::radiance(&Model { surfaces: m.surfaces.clone(), ..bare }, rows, bases, &fit.vis, &mut *fit.backend)?;
+    // The model's dirt factor, or the first the run traced where the model has none.
+    let dirt = bases.dirt_of(&m).or(bases.dirt.first().map(|b| b.factor.as_slice()));
     let mut s = String::from("material,tex,tx,ty,px,py,pz,nx,ny,nz,ar,ag,ab,lo_r,lo_g,lo_b,hi_r,hi_g,hi_b,x_r,x_g,x_b,area,g_lights,g_sky,g_surfaces,dirt\n");
     for i in 0..rows.len() {
         let p = scene.origin + rows.pos[i].as_dvec3();
@@ -1573,7 +1626,7 @@ fn dump_rows(path: &std::path::Path, scene: &Scene, rows: &Rows, bases: &Bases, 
             s,
             "{name},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             t[0], t[1], t[2], p.x, p.y, p.z, n.x, n.y, n.z, a[0], a[1], a[2], lo[0], lo[1], lo[2], hs[0], hs[1], hs[2], x[i][0], x[i][1], x[i][2], rows.area[i], only_lights[i][1], only_sky[i][1], only_surfaces[i][1],
-            bases.dirt.as_ref().map_or(1.0, |d| d[i])
+            dirt.map_or(1.0, |d| d[i])
         );
     }
     q3gltf_convert::output::write_atomic(path, s.as_bytes()).map_err(|e| Error::Io { path: path.display().to_string(), source: e })
@@ -1684,7 +1737,7 @@ mod tests {
     /// Only the bounce (and the ambient) undecided, three passes.
     fn bounce_plan() -> super::TermPlan {
         use super::Optional;
-        super::TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, filter: Optional::Off, fast_area: false, fast_bounce: false }
+        super::TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Auto, bounces: 3, dirt: Optional::Off, dirt_sets: Vec::new(), filter: Optional::Off, fast_area: false, fast_bounce: false }
     }
 
     /// The phases can leave the bounce's factor near zero (the ambient standing in for it);

@@ -252,6 +252,14 @@ impl Compile {
         self.light_stage().is_some_and(|l| l.split_whitespace().any(|t| t.eq_ignore_ascii_case(name)))
     }
 
+    /// The dirt settings of the recorded light stage (q3map2 takes a value that is not
+    /// positive, or not a number, as its default).
+    pub fn dirt_settings(&self) -> DirtSettings {
+        let value = |name: &str, default: f32| self.switch(name).and_then(|v| v.parse::<f32>().ok()).filter(|v| v.is_finite() && *v > 0.0).unwrap_or(default);
+        let d = DirtSettings::Q3MAP2;
+        DirtSettings { depth_units: value("-dirtdepth", d.depth_units), scale: value("-dirtscale", d.scale), gain: value("-dirtgain", d.gain) }
+    }
+
     /// The `-light ...` part of the recorded command line (stages are separated by `;`).
     fn light_stage(&self) -> Option<&str> {
         self.cmdline.as_deref()?.split(';').find(|s| s.split_whitespace().any(|t| t.eq_ignore_ascii_case("-light")))
@@ -407,9 +415,31 @@ pub struct Relit {
     pub bounce_scale: Option<[f32; 3]>,
     /// Passes of bounced light the fit used.
     pub bounces: usize,
-    /// q3map2's `-dirt` and `-filter` were part of the model.
-    pub dirt: bool,
+    /// q3map2's dirt, with its settings, was part of the model.
+    pub dirt: Option<DirtSettings>,
+    /// q3map2's `-filter` was part of the model.
     pub filter: bool,
+}
+
+/// q3map2's dirt settings: `-dirtdepth` (Quake units), `-dirtscale`, `-dirtgain`. Its
+/// `-dirtmode 1` (random directions) is taken as mode 0, the ordered directions: the
+/// same directions on average.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DirtSettings {
+    /// Ray length, Quake units.
+    pub depth_units: f32,
+    pub scale: f32,
+    pub gain: f32,
+}
+
+impl DirtSettings {
+    /// q3map2's defaults.
+    pub const Q3MAP2: DirtSettings = DirtSettings { depth_units: q3map2::DIRT_DEPTH_UNITS, scale: 1.0, gain: 1.0 };
+
+    /// Settings as read from a file: each finite and positive, or `None`.
+    pub fn checked(self) -> Option<DirtSettings> {
+        [self.depth_units, self.scale, self.gain].iter().all(|v| v.is_finite() && *v > 0.0).then_some(self)
+    }
 }
 
 /// How q3map2 sampled the lightmap, in Quake units (its source: `MapSingleLuxel`,
@@ -448,7 +478,7 @@ pub mod q3map2 {
     /// for the form factor.
     pub const AREA_ORIGIN_OFFSET_UNITS: f32 = 1.0;
     pub const AREA_PUSH_UNITS: f32 = 8.0;
-    /// Dirt (ambient occlusion, `-dirt`): ray length, scale and gain defaults.
+    /// Dirt (ambient occlusion, `-dirty`): the default ray length (`-dirtdepth`).
     pub const DIRT_DEPTH_UNITS: f32 = 128.0;
 }
 
@@ -469,6 +499,20 @@ mod tests {
     /// A smooth falling tail of lit bytes from 1 to `top` (more dark texels than bright).
     fn tail(top: u8) -> Vec<u8> {
         (1..=top).flat_map(|b| std::iter::repeat(b).take(1 + (top - b) as usize / 8)).collect()
+    }
+
+    #[test]
+    fn the_dirt_settings_are_read_from_the_recorded_light_stage() {
+        let c = |l: &str| Compile { cmdline: Some(l.into()), ..Default::default() };
+        let d = DirtSettings::Q3MAP2;
+        assert_eq!(c("-meta; -vis; -light -fast -dirty").dirt_settings(), d);
+        assert_eq!(c("-meta; -light -dirty -dirtdepth 48 -dirtscale 1.5 -dirtgain 0.8").dirt_settings(), DirtSettings { depth_units: 48.0, scale: 1.5, gain: 0.8 });
+        // q3map2 takes what is not positive as its default; what is not a number too.
+        assert_eq!(c("-light -dirty -dirtdepth 0 -dirtscale -2 -dirtgain x").dirt_settings(), d);
+        // Only the light stage counts.
+        assert_eq!(c("-bsp -dirtdepth 16; -light -dirty").dirt_settings(), d);
+        assert_eq!(DirtSettings { depth_units: f32::NAN, ..d }.checked(), None);
+        assert_eq!(d.checked(), Some(d));
     }
 
     #[test]

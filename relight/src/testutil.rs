@@ -160,7 +160,7 @@ pub fn chain_bases(n: usize, bounces: usize) -> crate::model::Bases {
         s
     };
     crate::model::Bases {
-        dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
+        dirt: vec![crate::model::compile::DirtBasis { settings: crate::scene::DirtSettings::Q3MAP2, factor: (0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect() }],
         filter: Some(ring(0.2, 3)),
         bounce: Some(factored_transport(n, n / 3 + 1)),
         bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),

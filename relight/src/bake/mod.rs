@@ -117,7 +117,8 @@ pub struct Report {
     pub ambient: Option<[f32; 3]>,
     pub minlight: Option<[f32; 3]>,
     pub bounces: usize,
-    pub dirt: bool,
+    /// q3map2's dirt and its settings, where the stated model has it.
+    pub dirt: Option<crate::model::compile::DirtSettings>,
     pub filter: bool,
     pub notes: Vec<String>,
     /// Luxel rows rendered (vertex-lit surfaces have no lightmap and are not baked).

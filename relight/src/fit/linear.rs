@@ -63,13 +63,13 @@ struct BlockGram {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct ChainKey {
     bounce: Option<[u32; 3]>,
-    dirt: bool,
+    dirt: Option<[u32; 3]>,
     filter: bool,
 }
 
 impl ChainKey {
     fn of(m: &Model) -> ChainKey {
-        ChainKey { bounce: m.bounce.map(|k| k.map(f32::to_bits)), dirt: m.dirt, filter: m.filter }
+        ChainKey { bounce: m.bounce.map(|k| k.map(f32::to_bits)), dirt: m.dirt.map(|d| [d.depth_units, d.scale, d.gain].map(f32::to_bits)), filter: m.filter }
     }
 }
 
@@ -475,7 +475,7 @@ impl Fitter<'_> {
                 (floor, below)
             }
         };
-        let dirt = if m.dirt { bases.dirt.as_deref() } else { None };
+        let dirt = bases.dirt_of(&m);
         let nonlocal = (m.filter && bases.filter.is_some()) || (m.bounce.is_some() && bases.bounce.is_some());
         // With one multiplier per kind, the chain is linear and the kind's members keep
         // their values: each kind's column is the chain run once over the kind's emitters
@@ -935,7 +935,7 @@ mod tests {
                 Light::point(p, [0.05 + 0.02 * (j % 5) as f32, 0.06, 0.04 + 0.01 * (j % 3) as f32])
             })
             .collect();
-        let stated = Model { lights: lights.clone(), ambient: Some([0.01; 3]), bounce: Some([0.8, 0.6, 0.7]), dirt: true, filter: true, ..Model::default() };
+        let stated = Model { lights: lights.clone(), ambient: Some([0.01; 3]), bounce: Some([0.8, 0.6, 0.7]), dirt: Some(crate::scene::DirtSettings::Q3MAP2), filter: true, ..Model::default() };
         assert!(lights.len() > super::DENSE_COLUMNS);
         let truth = Model { lights: lights.iter().map(|l| Light { rgb: l.rgb.map(|c| c * 0.5), ..*l }).collect(), ambient: Some([0.03, 0.02, 0.025]), ..stated.clone() };
         crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 5e-4);
@@ -972,7 +972,7 @@ mod tests {
             lights: vec![Light::point(Vec3::new(1.1 + dx, 1.7, 0.9), [2.0 * scale; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7 * scale, 1.2, 1.9]), Light::point(Vec3::new(0.7, 0.9, 2.1), [1.2; 3])],
             ambient: Some([0.01; 3]),
             bounce: Some([0.8, 0.6, 0.7]),
-            dirt: true,
+            dirt: Some(crate::scene::DirtSettings::Q3MAP2),
             filter: true,
             ..Model::default()
         };

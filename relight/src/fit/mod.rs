@@ -493,9 +493,9 @@ mod tests {
     fn four_lights() -> (crate::scene::Mesh, Rows, Bases, Model) {
         let (mesh, mut rows) = room(8);
         let n = rows.len();
-        let bases = Bases { dirt: Some((0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect()), filter: crate::testutil::chain_bases(n, 0).filter, ..Bases::default() };
+        let bases = Bases { dirt: vec![crate::model::compile::DirtBasis { settings: crate::scene::DirtSettings::Q3MAP2, factor: (0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect() }], filter: crate::testutil::chain_bases(n, 0).filter, ..Bases::default() };
         let at = |x: f32, y: f32, z: f32, i: f32| Light::point(Vec3::new(x, y, z), [i, 0.8 * i, 0.6 * i]);
-        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(3.2, 1.7, 0.8, 3.0), at(1.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 2.5, 5.0)], dirt: true, filter: true, ambient: Some([0.05; 3]), ..Model::default() };
+        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(3.2, 1.7, 0.8, 3.0), at(1.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 2.5, 5.0)], dirt: Some(crate::scene::DirtSettings::Q3MAP2), filter: true, ambient: Some([0.05; 3]), ..Model::default() };
         let bvh = Bvh::build(&mesh);
         data_from_model(&mut rows, &bases, &bvh, &truth, 0.01);
         for i in (0..n).step_by(7) {

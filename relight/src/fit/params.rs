@@ -280,7 +280,7 @@ mod tests {
             bounce: Some([0.9, 0.5, 0.25]),
             minlight: Some([0.2, 0.2, 0.3]),
             gathered: Some([0.3, 0.4, 0.5]),
-            dirt: true,
+            dirt: Some(crate::scene::DirtSettings::Q3MAP2),
             filter: false,
         };
         let x = c.encode(&m);
@@ -299,6 +299,6 @@ mod tests {
         assert!(close(&m.surfaces[2].unwrap(), &back.surfaces[2].unwrap()));
         assert!(close(&m.bounce.unwrap(), &back.bounce.unwrap()));
         assert!(close(&m.minlight.unwrap(), &back.minlight.unwrap()));
-        assert!(back.dirt && !back.filter);
+        assert!(back.dirt.is_some() && !back.filter);
     }
 }

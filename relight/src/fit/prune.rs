@@ -142,7 +142,7 @@ impl Fitter<'_> {
             .flat_map(|a| (a + 1..lights.len()).filter(move |&b| free(b) && (lights[a].pos - lights[b].pos).length() <= dist).map(move |b| (a, b)))
             .collect();
         let (rows, vis) = (self.rows, &self.vis);
-        let dirt = if self.model.dirt { self.bases.dirt.as_deref() } else { None };
+        let dirt = self.bases.dirt_of(&self.model);
         let mut scored: Vec<(f64, (usize, usize))> = near.par_iter().map(|&(a, b)| (merge_cost(rows, dirt, (&lights[a], &vis.bits[a]), (&lights[b], &vis.bits[b])), (a, b))).collect();
         scored.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
         let mut used = vec![false; lights.len()];

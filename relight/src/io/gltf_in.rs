@@ -684,7 +684,10 @@ fn relit_of(ex: &Value) -> Option<crate::scene::Relit> {
         minlight: rgb("minlight"),
         bounce_scale: rgb("bounce_scale"),
         bounces: ex.get("bounces").and_then(Value::as_u64).unwrap_or(0).min(64) as usize,
-        dirt: ex.get("dirt").and_then(Value::as_bool).unwrap_or(false),
+        // Files written before the settings were recorded used q3map2's defaults.
+        dirt: ex.get("dirt").and_then(Value::as_bool).unwrap_or(false).then(|| {
+            ex.get("dirt_settings").and_then(|v| serde_json::from_value::<crate::scene::DirtSettings>(v.clone()).ok()).and_then(|s| s.checked()).unwrap_or(crate::scene::DirtSettings::Q3MAP2)
+        }),
         filter: ex.get("filter").and_then(Value::as_bool).unwrap_or(false),
     })
 }
@@ -716,6 +719,21 @@ fn repair_normals(mesh: &mut Mesh) {
 mod tests {
     use super::*;
     use serde_json::json;
+
+    #[test]
+    fn a_relit_files_dirt_is_read_with_its_settings() {
+        use crate::scene::DirtSettings;
+        let read = |v: serde_json::Value| relit_of(&v).unwrap().dirt;
+        assert_eq!(read(serde_json::json!({ "dirt": false })), None);
+        // Written before the settings were recorded: q3map2's defaults.
+        assert_eq!(read(serde_json::json!({ "dirt": true })), Some(DirtSettings::Q3MAP2));
+        let s = DirtSettings { depth_units: 32.0, scale: 1.5, gain: 0.8 };
+        assert_eq!(read(serde_json::json!({ "dirt": true, "dirt_settings": s })), Some(s));
+        // Settings that are not finite and positive, or not settings: the defaults.
+        for bad in [serde_json::json!({ "depth_units": -1.0, "scale": 1.0, "gain": 1.0 }), serde_json::json!({ "depth_units": 64.0 }), serde_json::json!("deep")] {
+            assert_eq!(read(serde_json::json!({ "dirt": true, "dirt_settings": bad })), Some(DirtSettings::Q3MAP2));
+        }
+    }
 
     fn b64(data: &[u8]) -> String {
         const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";

@@ -257,13 +257,28 @@ pub fn filter(rows: &Rows, nb: &[Vec<(u32, i8, i8)>]) -> Sparse {
     s
 }
 
-/// Dirt settings (q3map2's `-dirtdepth`, `-dirtscale`, `-dirtgain`, `-dirtmode` 0).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct DirtSettings {
-    /// Ray length, m.
-    pub depth: f32,
-    pub scale: f32,
-    pub gain: f32,
+pub use crate::scene::DirtSettings;
+
+/// The factor of a luxel that gathered `g` (see [`dirt_gather`]) under `set`: 1 is no
+/// darkening (q3map2's `DirtForSample`).
+fn dirt_factor(set: &DirtSettings, g: f32) -> f32 {
+    if g <= 0.0 {
+        return 1.0;
+    }
+    1.0 - ((g / 49.0).powf(set.gain).min(1.0) * set.scale).min(1.0)
+}
+
+/// The depths (Quake units) the data chooses among where no compile recorded them: half
+/// and a quarter of q3map2's default, and the default. Measured on oacmpdm1 with its
+/// source lights (`--fit globals`, 2-core Xeon, 2026-11-28): depth 32, 48, 64, 96, 128:
+/// 0.1480, 0.1478, 0.1481, 0.1563 (the dirt left out), 0.1541 (left out).
+pub const DIRT_DEPTHS_UNITS: [f32; 3] = [32.0, 64.0, 128.0];
+
+/// One dirt setting's factor per row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DirtBasis {
+    pub settings: DirtSettings,
+    pub factor: Vec<f32>,
 }
 
 /// The 48 ordered directions of q3map2's dirt (16 azimuths x 3 elevations within 88
@@ -288,6 +303,15 @@ fn dirt_vectors() -> Vec<[f32; 3]> {
 /// From a point on a wall's plane with the wall on Quake's positive side, the rays along
 /// that wall stop at once too ([`SolidAhead`], `on_epsilon` m).
 pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32, ahead: SolidAhead, on_epsilon: f32) -> f32 {
+    let mut g = [0.0];
+    dirt_gathers(bvh, x, n, &[depth], ahead, on_epsilon, &mut g);
+    g[0]
+}
+
+/// [`dirt_gather`] at several depths (m) from one trace per direction, as far as the
+/// largest: a hit within a shorter depth is the first hit of that shorter ray too. At the
+/// largest depth the same bits as [`dirt_gather`] at it alone.
+pub fn dirt_gathers(bvh: &Bvh, x: Vec3, n: Vec3, depths: &[f32], ahead: SolidAhead, on_epsilon: f32, g: &mut [f32]) {
     // q3map2's tangent frame: right = n x up (Quake's Z is glTF's Y), up = right x n.
     let world_up = Vec3::Y;
     let (right, up) = if n.x == 0.0 && n.z == 0.0 && n.y.abs() == 1.0 {
@@ -298,52 +322,65 @@ pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32, ahead: SolidAhead, o
         let r = n.cross(world_up).normalize();
         (r, r.cross(n).normalize())
     };
-    let mut g = 0.0;
+    g.iter_mut().for_each(|v| *v = 0.0);
+    let longest = depths.iter().copied().fold(0.0f32, f32::max);
     for v in dirt_vectors().iter().chain(std::iter::once(&[0.0, 0.0, 1.0])) {
         let d = right * v[0] + up * v[1] + n * v[2];
-        if on_epsilon > 0.0 && ahead.stops(d, depth, on_epsilon) {
-            g += 1.0;
-            continue;
-        }
-        // A sample on a wall's plane (the edge row of a face where it meets the wall) is
-        // occluded at distance 0 in that wall's direction, as q3map2's BSP trace finds it.
-        if let Some((dist, _)) = bvh.first_hit_from_plane(x, d, depth) {
-            g += 1.0 - dist / depth;
+        let mut traced = false;
+        let mut hit = None;
+        for (gk, &depth) in g.iter_mut().zip(depths) {
+            if on_epsilon > 0.0 && ahead.stops(d, depth, on_epsilon) {
+                *gk += 1.0;
+                continue;
+            }
+            // A sample on a wall's plane (the edge row of a face where it meets the wall)
+            // is occluded at distance 0 in that wall's direction, as q3map2's BSP trace
+            // finds it.
+            if !traced {
+                hit = bvh.first_hit_from_plane(x, d, longest).map(|h| h.0);
+                traced = true;
+            }
+            if let Some(dist) = hit.filter(|&t| t < depth || depth == longest) {
+                *gk += 1.0 - dist / depth;
+            }
         }
     }
-    g
 }
 
-/// The dirt factor of every row (1 = no darkening), smoothed over each luxel's mapped
-/// neighbours as q3map2 does: in place, row by row of each lightmap (later luxels see
-/// their earlier neighbours already smoothed), over the neighbours with some dirt.
-pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], set: &DirtSettings) -> Vec<f32> {
-    let raw: Vec<f32> = (0..rows.len())
+/// The dirt factor of every row for each of `sets` (1 = no darkening), smoothed over each
+/// luxel's mapped neighbours as q3map2 does: in place, row by row of each lightmap (later
+/// luxels see their earlier neighbours already smoothed), over the neighbours with some
+/// dirt. One trace per direction serves every depth. `units_m`: metres per Quake unit.
+pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSettings], units_m: f32) -> Vec<DirtBasis> {
+    let depths: Vec<f32> = sets.iter().map(|s| s.depth_units * units_m).collect();
+    let gathered: Vec<Vec<f32>> = (0..rows.len())
         .into_par_iter()
         .map(|i| {
-            let g = dirt_gather(bvh, rows.pos[i], rows.normal[i], set.depth, rows.solid_ahead[i], rows.sampling.on_epsilon);
-            if g <= 0.0 {
-                return 1.0;
-            }
-            let out = ((g / 49.0).powf(set.gain).min(1.0) * set.scale).min(1.0);
-            1.0 - out
+            let mut g = vec![0.0f32; sets.len()];
+            dirt_gathers(bvh, rows.pos[i], rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g);
+            g
         })
         .collect();
     let mut order: Vec<usize> = (0..rows.len()).collect();
     order.sort_by_key(|&i| (rows.texel[i][0], rows.texel[i][2], rows.texel[i][1]));
-    let mut dirt = raw;
-    for i in order {
-        let (mut sum, mut n) = (dirt[i], 1.0f32);
-        for &(j, _, _) in &nb[i] {
-            let d = dirt[j as usize];
-            if d > 0.0 {
-                sum += d;
-                n += 1.0;
+    sets.iter()
+        .enumerate()
+        .map(|(k, set)| {
+            let mut dirt: Vec<f32> = gathered.iter().map(|g| dirt_factor(set, g[k])).collect();
+            for &i in &order {
+                let (mut sum, mut n) = (dirt[i], 1.0f32);
+                for &(j, _, _) in &nb[i] {
+                    let d = dirt[j as usize];
+                    if d > 0.0 {
+                        sum += d;
+                        n += 1.0;
+                    }
+                }
+                dirt[i] = sum / n;
             }
-        }
-        dirt[i] = sum / n;
-    }
-    dirt
+            DirtBasis { settings: *set, factor: dirt }
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -437,6 +474,76 @@ mod tests {
         // Moved off the plane into the open, the same rays hit at a distance.
         let g_off = dirt_gather(&bvh, x + w * 0.5, n, depth, SolidAhead::NONE, 0.0);
         assert!(g_off > 0.0 && g_off < g, "{g_off} vs {g}");
+    }
+
+    /// The rows moved off their faces and the walls around them, 1% of the way to the
+    /// room's centre, and up to 5 mm off the seams between the walls' triangles (a ray
+    /// along a seam slips between its two triangles or not by a hair).
+    fn lift(rows: &mut Rows) {
+        use crate::model::bounce::hash01;
+        let centre = Vec3::new(2.0, 1.25, 1.5);
+        for i in 0..rows.len() {
+            let jitter = Vec3::new(hash01(i as u32, 1), hash01(i as u32, 2), hash01(i as u32, 3)) - 0.5;
+            let off = (jitter - rows.normal[i] * jitter.dot(rows.normal[i])) * 0.01;
+            rows.pos[i] = rows.pos[i].lerp(centre, 0.01) + off;
+        }
+    }
+
+    #[test]
+    fn one_trace_gathers_every_depth_as_its_own_trace_would() {
+        // Samples across a room with quads scattered in it: the gathers at three depths
+        // from one trace as far as the longest are the gathers each depth traces alone
+        // (the same bits at the longest, f32 rounding of the hit distance below it). The
+        // samples sit off their faces, as q3map2's sit off theirs: a ray from a room's
+        // corner grazes the walls it starts on, hit or not by a hair either way.
+        let (mut mesh, mut rows) = crate::testutil::room(6);
+        lift(&mut rows);
+        crate::testutil::scatter_quads(&mut mesh, 40);
+        let bvh = Bvh::build(&mesh);
+        let depths = [0.4f32, 1.1, 2.5];
+        let mut some_differ = 0;
+        for i in 0..rows.len() {
+            let mut g = [0.0f32; 3];
+            dirt_gathers(&bvh, rows.pos[i], rows.normal[i], &depths, SolidAhead::NONE, 0.0, &mut g);
+            let alone = depths.map(|d| dirt_gather(&bvh, rows.pos[i], rows.normal[i], d, SolidAhead::NONE, 0.0));
+            assert_eq!(g[2].to_bits(), alone[2].to_bits(), "row {i}: {g:?} vs {alone:?}");
+            for k in 0..2 {
+                assert!((g[k] - alone[k]).abs() <= 1e-4 * (1.0 + alone[k]), "row {i}, depth {}: {} vs {}", depths[k], g[k], alone[k]);
+            }
+            // A longer ray gathers at least what a shorter one does.
+            assert!(g[0] <= g[1] + 1e-5 && g[1] <= g[2] + 1e-5, "row {i}: {g:?}");
+            some_differ += (g[0] < g[2] - 0.5) as usize;
+        }
+        assert!(some_differ > rows.len() / 4, "the depths differ on {some_differ} of {} rows", rows.len());
+    }
+
+    #[test]
+    fn the_dirt_of_each_setting_is_its_own_basis() {
+        // The bases of three settings from one call: each the same as a call with it alone.
+        let (mut mesh, mut rows) = crate::testutil::room(4);
+        lift(&mut rows);
+        crate::testutil::scatter_quads(&mut mesh, 20);
+        let bvh = Bvh::build(&mesh);
+        let nb = neighbours(&rows);
+        let set = |depth_units: f32, scale: f32, gain: f32| DirtSettings { depth_units, scale, gain };
+        let sets = [set(32.0, 1.0, 1.0), set(128.0, 1.5, 2.0), set(128.0, 1.0, 1.0)];
+        let units_m = 0.02;
+        let all = dirt(&rows, &bvh, &nb, &sets, units_m);
+        assert_eq!(all.len(), 3);
+        for (k, b) in all.iter().enumerate() {
+            assert_eq!(b.settings, sets[k]);
+            let alone = dirt(&rows, &bvh, &nb, &sets[k..k + 1], units_m).remove(0);
+            if sets[k].depth_units == 128.0 {
+                assert_eq!(b.factor, alone.factor, "setting {k}");
+            } else {
+                assert!(b.factor.iter().zip(&alone.factor).all(|(a, b)| (a - b).abs() < 1e-5), "setting {k}");
+            }
+            assert!(b.factor.iter().all(|f| f.is_finite() && (0.0..=1.0).contains(f)));
+        }
+        // Scale and gain darken where anything was gathered; a shorter ray darkens less.
+        let mean = |f: &[f32]| f.iter().sum::<f32>() / f.len() as f32;
+        let (short, strong, default) = (mean(&all[0].factor), mean(&all[1].factor), mean(&all[2].factor));
+        assert!(short > default && default != strong, "{short} {strong} {default}");
     }
 
     #[test]

@@ -9,7 +9,7 @@
 //! | sun | [`sun`] | irradiance, colour (its direction by search) |
 //! | sky light | [`sky`] | irradiance |
 //! | surface lights | [`surface`] (patches from [`patch_mesh`], q3map2's mesh of them) | radiance per emitting shader |
-//! | ambient, minlight, filter, dirt | [`compile`] | ambient, minlight; filter and dirt on or off |
+//! | ambient, minlight, filter, dirt | [`compile`] | ambient, minlight; filter on or off; dirt on or off, its depth among [`compile::DIRT_DEPTHS_UNITS`] where no compile recorded it |
 //! | bounced light | [`bounce`] | scale per channel |
 //!
 //! Per row `i` and channel `c`, in q3map2's order (see [`compile`]):
@@ -68,8 +68,8 @@ pub struct Model {
     pub minlight: Option<[f32; 3]>,
     /// Scale of the data's own gathered bounce (placement only).
     pub gathered: Option<[f32; 3]>,
-    /// q3map2's `-dirt` (the factor is [`Bases::dirt`]).
-    pub dirt: bool,
+    /// q3map2's dirt (`-dirty`) and its settings (the factor is [`Bases::dirt_of`]).
+    pub dirt: Option<compile::DirtSettings>,
     /// q3map2's `-filter`.
     pub filter: bool,
 }
@@ -96,8 +96,8 @@ impl Model {
 pub struct Bases {
     pub sky: Option<sky::SkyBasis>,
     pub surfaces: surface::SurfaceBasis,
-    /// Dirt factor per row.
-    pub dirt: Option<Vec<f32>>,
+    /// Dirt factor per row, one basis per setting the run considers.
+    pub dirt: Vec<compile::DirtBasis>,
     pub filter: Option<Sparse>,
     /// The bounce's transport `K` ([`bounce::Transport`]).
     pub bounce: Option<bounce::Transport>,
@@ -114,6 +114,13 @@ pub struct Bases {
 }
 
 impl Bases {
+    /// The dirt factor per row of the model's dirt settings: `None` where the model has
+    /// no dirt, or these bases no basis for its settings.
+    pub fn dirt_of(&self, model: &Model) -> Option<&[f32]> {
+        let set = model.dirt?;
+        self.dirt.iter().find(|b| b.settings == set).map(|b| b.factor.as_slice())
+    }
+
     /// The bases of a subset of the rows (`take`: their indices in these rows). The
     /// filter and the bounce operator link rows to rows and are not carried over: the
     /// subset uses the gathered bounce instead.
@@ -130,7 +137,7 @@ impl Bases {
         Bases {
             sky: self.sky.as_ref().map(|b| sky::SkyBasis { d: take.iter().map(|&i| b.d[i]).collect(), directions: b.directions.clone(), mean_cos_up: b.mean_cos_up }),
             surfaces,
-            dirt: self.dirt.as_ref().map(|d| take.iter().map(|&i| d[i]).collect()),
+            dirt: self.dirt.iter().map(|b| compile::DirtBasis { settings: b.settings, factor: take.iter().map(|&i| b.factor[i]).collect() }).collect(),
             filter: None,
             bounce: None,
             bounce_reflectance: Vec::new(),
@@ -193,14 +200,6 @@ fn add_other_emitters(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibilit
     }
 }
 
-fn dirt_of<'a>(model: &Model, bases: &'a Bases) -> Option<&'a [f32]> {
-    if model.dirt {
-        bases.dirt.as_deref()
-    } else {
-        None
-    }
-}
-
 fn filter_of<'a>(model: &Model, bases: &'a Bases) -> Option<&'a Sparse> {
     if model.filter {
         bases.filter.as_ref()
@@ -215,7 +214,7 @@ fn dirt_filter(model: &Model, bases: &Bases, v: Vec<[f64; 3]>) -> Vec<[f64; 3]> 
         Some(f) => f.apply(&v, None),
         None => v,
     };
-    if let Some(d) = dirt_of(model, bases) {
+    if let Some(d) = bases.dirt_of(model) {
         v.par_iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
     }
     v
@@ -223,7 +222,7 @@ fn dirt_filter(model: &Model, bases: &Bases, v: Vec<[f64; 3]>) -> Vec<[f64; 3]> 
 
 /// `Filter^T dirt v` (the adjoint of [`dirt_filter`]).
 fn dirt_filter_adjoint(model: &Model, bases: &Bases, mut v: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
-    if let Some(d) = dirt_of(model, bases) {
+    if let Some(d) = bases.dirt_of(model) {
         v.par_iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
     }
     match filter_of(model, bases) {
@@ -256,7 +255,7 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
     if let Some(a) = model.ambient {
         f.par_iter_mut().for_each(|x| (0..3).for_each(|c| x[c] += a[c] as f64));
     }
-    if let Some(d) = dirt_of(model, bases) {
+    if let Some(d) = bases.dirt_of(model) {
         f.par_iter_mut().zip(d).for_each(|(x, &d)| x.iter_mut().for_each(|c| *c *= d as f64));
     }
     let mut passes = vec![f];
@@ -379,7 +378,7 @@ pub fn light_column(chain: &Model, rows: &Rows, bases: &Bases, direct: &[(u32, f
             Some(f) => t.apply(f, None),
             None => t,
         };
-        if let Some(d) = dirt_of(chain, bases) {
+        if let Some(d) = bases.dirt_of(chain) {
             t.each(|i, x| x.iter_mut().for_each(|c| *c *= d[i] as f64));
         }
         t
@@ -505,7 +504,7 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
     }
     // Ambient (before dirt, after the filter), then rho_D = Filter^T (dirt rho_0).
     if model.ambient.is_some() {
-        let d = dirt_of(model, bases);
+        let d = bases.dirt_of(model);
         for i in 0..n {
             let w = d.map_or(1.0, |d| d[i] as f64);
             for c in 0..3 {
@@ -555,7 +554,7 @@ mod tests {
             let mut e = vec![[0.0f32; 3]; n];
             direct.iter().for_each(|&(i, g)| e[i as usize] = [g; 3]);
             for bits in 0..8 {
-                let chain = Model { bounce: (bits & 1 != 0).then_some([0.8, 0.6, 0.7]), dirt: bits & 2 != 0, filter: bits & 4 != 0, ..Model::default() };
+                let chain = Model { bounce: (bits & 1 != 0).then_some([0.8, 0.6, 0.7]), dirt: (bits & 2 != 0).then_some(crate::scene::DirtSettings::Q3MAP2), filter: bits & 4 != 0, ..Model::default() };
                 let want = forward(&chain, &rows, &bases, &Visibility::default(), &e).x;
                 let got = light_column(&chain, &rows, &bases, &direct);
                 assert_eq!(got.len(), n);
@@ -601,7 +600,7 @@ mod tests {
         let bases = Bases {
             sky: Some(sky),
             surfaces,
-            dirt: Some((0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect()),
+            dirt: vec![crate::model::compile::DirtBasis { settings: crate::scene::DirtSettings::Q3MAP2, factor: (0..n).map(|i| 0.6 + 0.05 * (i % 8) as f32).collect() }],
             filter: Some(ring(0.2)),
             bounce: Some(crate::testutil::factored_transport(n, n / 4 + 1)),
             bounce_reflectance: (0..n).map(|i| [0.5, 0.4 + 0.01 * (i % 9) as f32, 0.3]).collect(),
@@ -623,7 +622,7 @@ mod tests {
             bounce: Some([0.8, 0.6, 0.7]),
             minlight: Some([0.05, 0.05, 0.05]),
             gathered: Some([0.5, 0.4, 0.3]),
-            dirt: true,
+            dirt: Some(crate::scene::DirtSettings::Q3MAP2),
             filter: true,
         };
         let mut vis = Visibility::default();

@@ -113,7 +113,7 @@ pub fn resumed(start: &Model, scene: &Scene, bases: &crate::model::Bases) -> Opt
     if bases.bounce.is_some() {
         m.bounce = relit.bounce_scale.filter(|_| relit.bounces > 0);
     }
-    m.dirt = relit.dirt && bases.dirt.is_some();
+    m.dirt = relit.dirt.filter(|s| bases.dirt.iter().any(|b| b.settings == *s));
     m.filter = relit.filter && bases.filter.is_some();
     Some(m)
 }
