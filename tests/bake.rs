@@ -244,16 +244,23 @@ fn a_relit_real_map_bakes_to_relights_own_error_on_both_backends() {
     // The bake of a file that states a gamma is checked on the synthetic scene
     // (`tests/relight.rs`).
     run(&["relight", gltf.to_str().unwrap(), "-o", relit.to_str().unwrap(), "--init", "input", "--fit", "globals", "--gamma", "off", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
-    let relight_error = read_json(&rep)["rel_error_final"].as_f64().unwrap();
+    // relight's error counts the jump pads' vertex-lit vertices, which have no lightmap and
+    // the bake does not count: the error on the luxels alone takes their share of the
+    // residual out (the denominator keeps their data, 144 rows of 170k: a rounding).
+    // Measured 2026-11-28, the dirt at the depth the data chose (64 units) and an ambient:
+    // relight 0.0741, their share 34%, so 0.0601 on the luxels; the bake 0.0605.
+    let report = read_json(&rep);
+    let vertex_share: f64 = report["residual_by_material"].as_array().unwrap().iter().filter(|m| m["material"].as_str().unwrap().ends_with("#vertex")).map(|m| m["residual_share"].as_f64().unwrap()).sum();
+    assert!((0.0..1.0).contains(&vertex_share), "{vertex_share}");
+    let relight_error = report["rel_error_final"].as_f64().unwrap() * (1.0 - vertex_share).sqrt();
     let mut pages = Vec::new();
     for backend in ["cpu", "wgpu"] {
         let out = dir.join(format!("bake-{backend}"));
         run(&["bake", relit.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", backend, "-q"]);
         let b = read_json(&out.join("bake.json"));
         let err = b["rel_error"].as_f64().unwrap();
-        // Measured 2026-11-23: relight 0.1113, bake 0.1101 (relight also counts the 144
-        // vertex-lit vertices, which have no lightmap).
-        assert!((err / relight_error - 1.0).abs() < 0.03, "{backend}: bake error {err:.4}, relight reported {relight_error:.4}");
+        // Measured 2026-11-23: relight 0.1113, bake 0.1101 (the vertex-lit rows counted).
+        assert!((err / relight_error - 1.0).abs() < 0.03, "{backend}: bake error {err:.4}, relight's on the luxels {relight_error:.4}");
         assert!(b["sky"].as_bool().unwrap() && b["surface_lights"].as_u64().unwrap() == 5 && b["lights"].as_u64().unwrap() > 30, "{backend}: the stated model lost terms: {b}");
         for f in b["files"].as_array().unwrap() {
             assert!(out.join(f.as_str().unwrap()).is_file(), "{backend}: {f} listed, not written");

@@ -9,8 +9,8 @@
 //!   sources ship with them, the same way.
 //!
 //! The bounds are the measured errors with a margin (the figures are in the README's
-//! fidelity section); where a bound is above the fidelity issue's goal, the README says what
-//! is missing.
+//! fidelity section, and every measurement in `docs/fidelity.md`); where a bound is above
+//! the fidelity issue's goal, those say what is missing.
 
 mod common;
 
