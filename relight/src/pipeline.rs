@@ -1194,6 +1194,33 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
     bvh.first_hit(l.pos, s.axis * reach, 1.0).map_or(1.0, |(t, _)| (t * reach) as f64)
 }
 
+/// How [`decide_terms`] switches a term on or off from the model it starts from (the
+/// entry): `fn(model, entry, on)`.
+type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
+
+/// One optional term as [`decide_terms`] weighs it.
+struct TermCase {
+    name: String,
+    /// The plan's choice.
+    choice: Optional,
+    /// Switches it on or off from the entry.
+    set: Set,
+    /// Other ways to switch it on, each tried too where it differs from `set`'s (the
+    /// best is the term's case).
+    others: Vec<Set>,
+    /// What another way must lower the error by to replace the first.
+    other_gain: f64,
+    /// What the term kept is, for the report's note (the dirt's settings).
+    describe: fn(&Model) -> Option<String>,
+}
+
+impl TermCase {
+    /// A term with one way to switch it on.
+    fn new(name: &str, choice: Optional, set: Set) -> TermCase {
+        TermCase { name: name.into(), choice, set, others: Vec::new(), other_gain: 0.0, describe: |_| None }
+    }
+}
+
 /// Decides each optional term (see [`Optional`]): with `auto` a term stays when the linear
 /// fit with it lowers the relative error by at least [`TERM_GAIN`] against the same fit
 /// without it, or when it lowers it at all and leaving it out would take the error more
@@ -1203,24 +1230,17 @@ fn spot_distance(bvh: &Bvh, l: &Light) -> f64 {
 /// weighed without the ambient and the ambient last (see the ambient's entry below).
 /// Appends one report per term considered.
 fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, out: &mut Vec<TermReport>) {
-    type Set = Box<dyn Fn(&mut Model, &Model, bool)>;
-    // Per term: its name, the plan's choice, how to switch it on or off from the entry,
-    // and other ways to switch it on, each tried too where it differs, with what another
-    // way must lower the error by to replace the first (the best is the term's case).
-    let mut list: Vec<(String, Optional, Set, Vec<Set>, f64)> = Vec::new();
+    let mut list: Vec<TermCase> = Vec::new();
     if fit.bases.bounce.is_some() {
         // The bounce's factor is not a linear coefficient: the phases may have taken it
         // near zero (the ambient standing in for it) before the exact fits could weigh it.
         // It is also tried at q3map2's default strength, factor 1 (its `-bouncescale
         // 0.25`): oacmpdm1 with its source lights, 0.2879 with the phases' 4e-6, 0.2411
         // at 1.
-        list.push((
-            "bounce".into(),
-            terms.bounce,
-            Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None }),
-            vec![Box::new(|m, _, on| m.bounce = on.then_some([1.0; 3]))],
-            0.0,
-        ));
+        list.push(TermCase {
+            others: vec![Box::new(|m, _, on| m.bounce = on.then_some([1.0; 3]))],
+            ..TermCase::new("bounce", terms.bounce, Box::new(|m, e, on| m.bounce = if on { e.bounce.or(Some([1.0; 3])) } else { None }))
+        });
     }
     if let Some(first) = first_dirt(&terms.dirt_sets).filter(|_| !fit.bases.dirt.is_empty()) {
         // Each depth the data chooses among is another way to switch it on. Another depth
@@ -1230,20 +1250,25 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
         // at the stored reading, which then stood in for its gamma (0.0741, gamma 1;
         // 0.0715 with depth 128 and gamma 1.375).
         let others: Vec<Set> = terms.dirt_sets.iter().filter(|&&s| s != first).map(|&s| Box::new(move |m: &mut Model, _: &Model, on: bool| m.dirt = on.then_some(s)) as Set).collect();
-        list.push(("dirt".into(), terms.dirt, Box::new(move |m, e, on| m.dirt = if on { e.dirt.or(Some(first)) } else { None }), others, TERM_GAIN));
+        list.push(TermCase {
+            others,
+            other_gain: TERM_GAIN,
+            describe: |m| m.dirt.map(|d| format!("depth {} units, scale {}, gain {}", d.depth_units, d.scale, d.gain)),
+            ..TermCase::new("dirt", terms.dirt, Box::new(move |m, e, on| m.dirt = if on { e.dirt.or(Some(first)) } else { None }))
+        });
     }
     if fit.bases.filter.is_some() {
-        list.push(("filter".into(), terms.filter, Box::new(|m, _, on| m.filter = on), Vec::new(), 0.0));
+        list.push(TermCase::new("filter", terms.filter, Box::new(|m, _, on| m.filter = on)));
     }
     if opts.fit == FitMode::All {
         if fit.model.sun.is_some() {
-            list.push(("sun".into(), terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None }), Vec::new(), 0.0));
+            list.push(TermCase::new("sun", terms.sun, Box::new(|m, e, on| m.sun = if on { e.sun } else { None })));
         }
         if fit.bases.sky.is_some() {
-            list.push(("sky".into(), terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None }), Vec::new(), 0.0));
+            list.push(TermCase::new("sky", terms.sky, Box::new(|m, e, on| m.sky = if on { e.sky.or(Some([0.1; 3])) } else { None })));
         }
         for (s, g) in fit.bases.surfaces.groups.clone().iter().enumerate() {
-            list.push((format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None }), Vec::new(), 0.0));
+            list.push(TermCase::new(&format!("surface light {}", g.name), terms.surfaces, Box::new(move |m, e, on| m.surfaces[s] = if on { e.surfaces[s].or(Some([1e-3; 3])) } else { None })));
         }
     }
     // The ambient is the catch-all: a constant that stands in, in part, for any term that
@@ -1253,7 +1278,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
     // was kept: 0.1581; weighed without it, the bounce is kept and the ambient not
     // needed: 0.1543.
     let entry_ambient = fit.model.ambient;
-    list.push(("ambient".into(), Optional::Auto, Box::new(move |m, _, on| m.ambient = if on { entry_ambient.or(Some([1e-6; 3])) } else { None }), Vec::new(), 0.0));
+    list.push(TermCase::new("ambient", Optional::Auto, Box::new(move |m, _, on| m.ambient = if on { entry_ambient.or(Some([1e-6; 3])) } else { None })));
     // Which terms a model has on (the lights aside).
     let terms_of = |m: &Model| (m.bounce.is_some(), m.dirt, m.filter, m.sun.is_some(), m.sky.is_some(), m.surfaces.iter().map(Option::is_some).collect::<Vec<_>>(), m.ambient.is_some());
     // The entry's error as the phases saw it (their visibility; the value only).
@@ -1268,7 +1293,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
     let mut current = fit.fit_linear();
     // The lowest error the decisions have reached (what the allowance is counted from).
     let mut lowest = current;
-    for (name, choice, set, others, other_gain) in list {
+    for TermCase { name, choice, set, others, other_gain, describe } in list {
         if fit.out_of_time() {
             break;
         }
@@ -1318,8 +1343,8 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
             (_, true) => "kept: leaving it out too would take the error past the allowance for the terms left out".into(),
             (_, false) => "not used: does not lower the error enough".into(),
         };
-        if let (true, Some(d)) = (keep, with.1.dirt.filter(|_| name == "dirt")) {
-            note.push_str(&format!(" (depth {} units, scale {}, gain {})", d.depth_units, d.scale, d.gain));
+        if let Some(what) = describe(&with.1).filter(|_| keep) {
+            note.push_str(&format!(" ({what})"));
         }
         out.push(TermReport { term: name, kept: keep, rel_error_without: without.0, rel_error_with: with.0, note });
         let chosen = if keep { with } else { without };
