@@ -1249,7 +1249,8 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
         // of the terms: oacmpctf1 with its source lights, free to take any depth, took 64
         // at the stored reading, which then stood in for its gamma (0.0741, gamma 1;
         // 0.0715 with depth 128 and gamma 1.375).
-        let others: Vec<Set> = terms.dirt_sets.iter().filter(|&&s| s != first).map(|&s| Box::new(move |m: &mut Model, _: &Model, on: bool| m.dirt = on.then_some(s)) as Set).collect();
+        // Every setting (the one the first way gives is skipped where it is tried).
+        let others: Vec<Set> = terms.dirt_sets.iter().map(|&s| Box::new(move |m: &mut Model, _: &Model, on: bool| m.dirt = on.then_some(s)) as Set).collect();
         list.push(TermCase {
             others,
             other_gain: TERM_GAIN,
