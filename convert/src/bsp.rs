@@ -728,14 +728,19 @@ impl Bsp {
         Ok(Bsp { format, entities, shaders, models, verts, indices, surfaces, lightmaps, collision, other })
     }
 
-    /// Vertices of a drawable surface (range checked by [`Bsp::parse`]).
+    /// Vertices of a surface. [`Bsp::parse`] checks the range of drawn surfaces
+    /// (polygons, meshes, patches); a flare's or an unknown kind's range is never checked,
+    /// so one that falls outside the vertices reads as none rather than panicking.
     pub fn surface_verts(&self, s: &Surface) -> &[DrawVert] {
-        &self.verts[s.first_vert as usize..(s.first_vert + s.num_verts) as usize]
+        let first = s.first_vert as usize;
+        first.checked_add(s.num_verts as usize).and_then(|end| self.verts.get(first..end)).unwrap_or(&[])
     }
 
-    /// Indexes of a polygon or mesh surface, relative to its first vertex (checked).
+    /// Indexes of a surface, relative to its first vertex. Checked by [`Bsp::parse`] for
+    /// polygons and meshes; any other kind's range outside the indexes reads as none.
     pub fn surface_indices(&self, s: &Surface) -> &[u32] {
-        &self.indices[s.first_index as usize..(s.first_index + s.num_indexes) as usize]
+        let first = s.first_index as usize;
+        first.checked_add(s.num_indexes as usize).and_then(|end| self.indices.get(first..end)).unwrap_or(&[])
     }
 
     /// Writes the records as a BSP file: IBSP with the version of `self.format`, or RBSP 1
@@ -875,6 +880,26 @@ mod tests {
             parsed.other = b.other;
             assert!(parsed == b, "{format}: the records differ after the round trip");
         }
+    }
+
+    /// Found by the fuzzer (CI, stop 50): a flare in the world model whose vertex range
+    /// lies outside the vertices. `parse` checks only drawn surfaces' ranges, so the
+    /// accessors must read such a range as empty, and the whole build (shadow casters
+    /// included, which walk every surface of the world) must not panic.
+    #[test]
+    fn unchecked_kinds_with_ranges_outside_read_as_empty() {
+        let mut b = tiny();
+        b.surfaces.push(Surface { first_vert: 200, num_verts: 5, first_index: 90, num_indexes: 3, ..Surface::new(0, SurfaceType::Flare) });
+        b.surfaces.push(Surface { first_vert: 0x7fff_fff0, num_verts: 0x7fff_fff0, ..Surface::new(0, SurfaceType::Other(0)) });
+        b.models[0].num_surfaces = 3;
+        let parsed = Bsp::parse(&b.to_bytes()).expect("flares' ranges are not checked");
+        assert!(parsed.collision.error.is_none() && !parsed.collision.nodes.is_empty(), "the casters must run");
+        for s in &parsed.surfaces[1..] {
+            assert!(parsed.surface_verts(s).is_empty() && parsed.surface_indices(s).is_empty());
+        }
+        assert_eq!(parsed.surface_verts(&parsed.surfaces[0]).len(), 3);
+        let map = crate::pipeline::LoadedMap { vfs: crate::vfs::Vfs::new(), bsp: parsed, name: "flare".into(), shown: "flare.bsp".into(), path: None };
+        crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {}).expect("the polygon still converts");
     }
 
     #[test]

@@ -93,6 +93,10 @@ pub fn q3map2_casters(bsp: &Bsp, infos: &[ShaderInfo], ents: &[Entity], cmdline:
         for si in first..last {
             let s = &bsp.surfaces[si];
             let Some(flag) = flags(s.shader) else { continue };
+            // Flares and unknown kinds cast nothing; `parse` checked only drawn ranges.
+            if !matches!(s.kind, SurfaceType::Polygon | SurfaceType::Mesh | SurfaceType::Patch) {
+                continue;
+            }
             let sv = bsp.surface_verts(s);
             let at = |p: [f64; 3]| -> [f32; 3] { [0, 1, 2].map(|k| (p[k] + off[k]) as f32) };
             match s.kind {
