@@ -902,6 +902,17 @@ mod tests {
         crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {}).expect("the polygon still converts");
     }
 
+    /// A map without models (no world) is parsed, and the whole build copes with it.
+    #[test]
+    fn a_map_without_models_builds_without_panicking() {
+        let mut b = tiny();
+        b.models.clear();
+        let parsed = Bsp::parse(&b.to_bytes()).expect("an empty models lump is well formed");
+        assert!(parsed.models.is_empty() && parsed.collision.error.is_none());
+        let map = crate::pipeline::LoadedMap { vfs: crate::vfs::Vfs::new(), bsp: parsed, name: "empty".into(), shown: "empty.bsp".into(), path: None };
+        let _ = crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {});
+    }
+
     #[test]
     fn rejects_bad_headers_and_ranges() {
         let good = tiny().to_bytes();

@@ -87,7 +87,8 @@ pub fn q3map2_casters(bsp: &Bsp, infos: &[ShaderInfo], ents: &[Entity], cmdline:
     let mut verts: Vec<[f32; 3]> = Vec::new();
     let mut tris: Vec<[u32; 4]> = Vec::new();
     for (m, off) in models {
-        let model = &bsp.models[m];
+        // A map may have no models at all (no world): then nothing casts.
+        let Some(model) = bsp.models.get(m) else { continue };
         let first = model.first_surface as usize;
         let last = first.saturating_add(model.num_surfaces as usize).min(bsp.surfaces.len());
         for si in first..last {
