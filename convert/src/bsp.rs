@@ -882,6 +882,12 @@ mod tests {
         }
     }
 
+    /// The whole scene build on `bsp` with an empty file system (as the fuzz target runs it).
+    fn build(bsp: Bsp) -> Result<(crate::scene::Scene, crate::pipeline::Summary), crate::error::Error> {
+        let map = crate::pipeline::LoadedMap { vfs: crate::vfs::Vfs::new(), bsp, name: "test".into(), shown: "test.bsp".into(), path: None };
+        crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {})
+    }
+
     /// Found by the fuzzer (CI, stop 50): a flare in the world model whose vertex range
     /// lies outside the vertices. `parse` checks only drawn surfaces' ranges, so the
     /// accessors must read such a range as empty, and the whole build (shadow casters
@@ -898,8 +904,7 @@ mod tests {
             assert!(parsed.surface_verts(s).is_empty() && parsed.surface_indices(s).is_empty());
         }
         assert_eq!(parsed.surface_verts(&parsed.surfaces[0]).len(), 3);
-        let map = crate::pipeline::LoadedMap { vfs: crate::vfs::Vfs::new(), bsp: parsed, name: "flare".into(), shown: "flare.bsp".into(), path: None };
-        crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {}).expect("the polygon still converts");
+        build(parsed).expect("the polygon still converts");
     }
 
     /// A map without models (no world) is parsed, and the whole build copes with it.
@@ -909,8 +914,7 @@ mod tests {
         b.models.clear();
         let parsed = Bsp::parse(&b.to_bytes()).expect("an empty models lump is well formed");
         assert!(parsed.models.is_empty() && parsed.collision.error.is_none());
-        let map = crate::pipeline::LoadedMap { vfs: crate::vfs::Vfs::new(), bsp: parsed, name: "empty".into(), shown: "empty.bsp".into(), path: None };
-        let _ = crate::pipeline::build_scene(&map, &crate::pipeline::Options::default(), &|_| {});
+        let _ = build(parsed);
     }
 
     #[test]
