@@ -302,10 +302,13 @@ impl<'a> Fitter<'a> {
         let unit = self.codec.unit;
         // The nearest surface of each light on all cores (a BVH query each: a fifth of what
         // oa_dm1's placement did on its main thread alone, once the forward chain's loops
-        // ran on all cores); summed in order, the same bits.
+        // ran on all cores); summed in order, the same bits. Only a surface nearer than
+        // `min_dist` counts, so the query looks no farther (9% of oacmpdm3's run with 256
+        // lights went to the unbounded one).
         let nearest: Vec<Option<(f32, Vec3)>> = {
             use rayon::prelude::*;
-            lights.par_iter().map(|l| self.bvh.nearest(l.pos)).collect()
+            let (bvh, min_dist) = (self.bvh, self.min_dist);
+            lights.par_iter().map(|l| bvh.nearest_within(l.pos, min_dist)).collect()
         };
         for (j, l) in lights.iter().enumerate() {
             if let Some((dist, near)) = nearest[j] {
