@@ -307,29 +307,25 @@ impl Bvh {
     /// the nearest leaf), and visits the rest in `nearest`'s order with `nearest`'s test,
     /// so within `r` its answer is `nearest`'s to the bit.
     pub fn nearest_within(&self, p: Vec3, r: f32) -> Option<(f32, Vec3)> {
-        let r2 = r * r;
-        let mut best: Option<(f32, Vec3)> = None;
-        let mut best_d2 = f32::INFINITY;
-        self.visit_near(p, r2, |_, c, d2| {
-            if d2 < best_d2 {
-                best_d2 = d2;
-                best = Some((d2.sqrt(), c));
-            }
-            best_d2.min(r2)
-        });
-        best
+        self.nearest_bounded(p, r * r).map(|(d, c, _)| (d, c))
     }
 
     /// [`Bvh::nearest`] with the nearest triangle's index in the mesh.
     pub fn nearest_triangle(&self, p: Vec3) -> Option<(f32, Vec3, u32)> {
+        self.nearest_bounded(p, f32::INFINITY)
+    }
+
+    /// The nearest triangle, the walk culling boxes farther than `bound2` (m^2) from the
+    /// start and, once a triangle is found, farther than it.
+    fn nearest_bounded(&self, p: Vec3, bound2: f32) -> Option<(f32, Vec3, u32)> {
         let mut best: Option<(f32, Vec3, u32)> = None;
         let mut best_d2 = f32::INFINITY;
-        self.visit_near(p, f32::INFINITY, |t, c, d2| {
+        self.visit_near(p, bound2, |t, c, d2| {
             if d2 < best_d2 {
                 best_d2 = d2;
                 best = Some((d2.sqrt(), c, t));
             }
-            best_d2
+            best_d2.min(bound2)
         });
         best
     }
