@@ -215,7 +215,7 @@ pub fn rows(scene: &Scene, vertex_target: &Target, scene_diagonal: f32) -> Luxel
                         let q = bary(s).map(|v| v as f32);
                         let uv: Vec2 = ua * q[0] + ub * q[1] + uc * q[2];
                         let a = match mat.albedo {
-                            Some(i) => texel::bilinear(&scene.textures[i], uv.x, uv.y, texel::srgb_to_linear),
+                            Some(i) => texel::bilinear(&scene.textures[i], uv.x, uv.y, texel::srgb_byte_to_linear),
                             None => [1.0; 3],
                         };
                         for ch in 0..3 {

@@ -155,13 +155,13 @@ pub fn triangle_sums(scene: &Scene, t: usize, out: &mut [f32; 3 * CORNER_FLOATS]
         let uv0 = mesh.uv0[tri[0]] * w[0] + mesh.uv0[tri[1]] * w[1] + mesh.uv0[tri[2]] * w[2];
         let uv1 = mesh.uv1[tri[0]] * w[0] + mesh.uv1[tri[1]] * w[1] + mesh.uv1[tri[2]] * w[2];
         let albedo = match alb_tex {
-            Some(tx) => texel::bilinear(tx, uv0.x, uv0.y, texel::srgb_to_linear),
+            Some(tx) => texel::bilinear(tx, uv0.x, uv0.y, texel::srgb_byte_to_linear),
             None => [1.0; 3],
         };
         let albedo = [albedo[0] * f[0], albedo[1] * f[1], albedo[2] * f[2]];
         let (e, cens) = match lm {
             Some(tx) => {
-                let e = texel::bilinear(tx, uv1.x, uv1.y, |v| mat.decode(v));
+                let e = texel::bilinear(tx, uv1.x, uv1.y, |b| mat.decode(b as f32 / 255.0));
                 // q3map2 scales an overflowing texel down keeping its hue: when one channel
                 // is at 255, every channel of the texel is a lower bound.
                 let near = texel::nearest(tx, uv1.x, uv1.y);
