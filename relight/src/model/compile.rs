@@ -210,10 +210,12 @@ fn gather_row(row: &[(u32, f32)], x: &[[f64; 3]], col: Option<&[[f32; 3]]>) -> [
 }
 
 /// The 8 neighbours of every luxel row in its raw lightmap (see the module docs), as
-/// `(row, dx, dy)`.
+/// `(row, dx, dy)`; the rows in parallel, each its own list (the same lists in any order).
 pub fn neighbours(rows: &Rows) -> Vec<Vec<(u32, i8, i8)>> {
     let index: HashMap<[u32; 3], u32> = (0..rows.len()).filter(|&i| rows.texel[i][0] != u32::MAX).map(|i| (rows.texel[i], i as u32)).collect();
     (0..rows.len())
+        .into_par_iter()
+        .with_min_len(4096)
         .map(|i| {
             let [t, x, y] = rows.texel[i];
             if t == u32::MAX {
