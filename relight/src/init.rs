@@ -8,7 +8,7 @@
 //!   opposite one), and only in free space (rays in 14 directions must all hit front
 //!   faces: never inside a wall or outside the map). The candidate that removes most of
 //!   the residual (exact one-light least squares) is added, it and the lights it shares
-//!   rows with are refitted with a short L-BFGS (every light while there are few,
+//!   rows with are refitted with a short L-BFGS on the rows they reach (every light while there are few,
 //!   `neighbours`) and every intensity exactly; if that gains less than `min_gain`, the
 //!   next-best candidates over other rows are tried (up to [`TRIES_PER_ROUND`] rows a
 //!   round). Past the first lights a round first tries its best candidates whose light
@@ -402,9 +402,19 @@ fn try_lights(fit: &mut Fitter, sub: &Rows, dirt: Option<&[f32]>, news: &[Light]
     let placed = (fit.model.clone(), fit.vis.clone());
     times.linear += t.elapsed().as_secs_f64();
     let t = clock();
-    // The short refinement moves the new lights and the lights they share rows with; the
-    // others are held (a refit of every light cost each round time in proportion to the
-    // lights placed so far).
+    // The short refinement moves the new lights and the lights they share rows with, on
+    // the rows those reach; the others are held (a refit of every light cost each round
+    // time in proportion to the lights placed so far, and one on every row cost each try
+    // the whole subsample's time, on a map of many rooms as on one of few). Measured on
+    // the refit on the reach against the refit on every row (2-core Xeon, default relight,
+    // one run each, 2026-11-29; error (lights), placement s): oa_dm1 0.2075 (106) 22.6 s
+    // -> 0.2078 (100) 16.8 s; oacmpdm1 0.1623 (108) 36.9 -> 0.1615 (110) 22.6; oacmpdm2
+    // 0.0676 (101) 22.0 -> 0.0702 (87) 16.4; oacmpdm3 0.1940 (116) 23.7 -> 0.1967 (118)
+    // 19.0; oacmpdm4 0.1012 (59) 10.0 -> 0.1011 (58) 5.1; oacmpctf1 0.0830 (21) 12.1 ->
+    // 0.0842 (20) 4.2. The errors move within the greedy path's own spread (the same
+    // change summed in another order gave oa_dm1 0.2103 with 108); the later stages
+    // took some of the time back (the whole runs 547 -> 530 s). 30 iterations on the
+    // reach: oa_dm1 0.2146, oacmpdm1 0.1659, oacmpdm2 0.0728, oacmpdm3 0.1933, slower.
     let n = fit.model.lights.len();
     let mut near: Vec<usize> = Vec::new();
     for new in n - news.len()..n {
@@ -417,7 +427,7 @@ fn try_lights(fit: &mut Fitter, sub: &Rows, dirt: Option<&[f32]>, news: &[Light]
     near.sort_unstable();
     // 15 iterations: 10 made oa_dm1's default 4.6 s shorter but 0.2076 -> 0.2214 (the
     // other maps of the truth set within +-0.004; 2026-11-28, 2-core Xeon, one run each).
-    fit.run_phase_moving("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 }, &near);
+    fit.run_phase_on_reach("auto", Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: 15 }, &near, e0);
     times.refit += t.elapsed().as_secs_f64();
     let t = clock();
     fit.refresh_visibility();

@@ -640,7 +640,7 @@ fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::
     let bounce_reflectance = if bounce.is_some() { model::bounce::reflectance(rows) } else { Vec::new() };
     let gathered = bounce.as_ref().filter(|_| with_gathered).map(|t| crate::gather::through(rows, t, &bounce_reflectance));
     st.done("bases: gathered");
-    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounce_stats, bounces: plan.bounces, gathered, sky_triangles }
+    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounce_stats, bounces: plan.bounces, gathered, sky_triangles, held: None }
 }
 
 /// The map's own emitters as the file declares them: the sun (from its directional

@@ -335,6 +335,104 @@ impl<'a> Fitter<'a> {
         (total, grads)
     }
 
+    /// [`Fitter::run_phase`] moving only the lights `js` (position, intensity, colour), on
+    /// the rows they reach where the phase starts; every other light and term is held
+    /// ([`Bases::held`]). An evaluation then costs what those lights light, not the whole
+    /// map: the greedy placement refits one new light at a time on a map of a hundred
+    /// rooms. The objective leaves out the rows outside that reach (they are held
+    /// constant: a light that moves into sight of them is neither paid nor charged for it
+    /// there), so the caller judges the result on all rows (the placement solves every
+    /// intensity after it and undoes a refit that made things worse).
+    ///
+    /// `rel_error_now` is the whole model's relative error as the phase finds it (the
+    /// caller's last solve): the records and the summary add the rows outside the reach to
+    /// the errors they report, so that they read as the whole model's. Where the model's
+    /// chain spreads light between rows (a filter or a bounce on these rows), this is
+    /// [`Fitter::run_phase_moving`].
+    pub fn run_phase_on_reach(&mut self, name: &str, phase: Phase, js: &[usize], rel_error_now: f64) -> PhaseSummary {
+        let spreads = self.bases.filter.is_some() || self.bases.bounce.is_some();
+        if spreads || self.failure.is_some() {
+            return self.run_phase_moving(name, phase, js);
+        }
+        self.refresh_visibility();
+        let n = self.model.lights.len();
+        let js: Vec<usize> = (0..n).filter(|j| js.contains(j)).collect();
+        let held: Vec<usize> = (0..n).filter(|j| !js.contains(j)).collect();
+        let reach = self.vis.reached_rows(&js);
+        let rows = self.rows.subset(&reach);
+        let mut bases = self.bases.subset(&reach);
+        let mut cpu = crate::backend::Cpu::new(&rows, self.bvh);
+        // What the held lights and the other emitters give the reach, through the chain
+        // and before the floor; the gathered term comes after the floor, out of the data.
+        let held_vis = self.vis.select_rows(&held, &reach);
+        let held_model = Model { lights: held.iter().map(|&j| self.model.lights[j]).collect(), minlight: None, gathered: None, ..self.model.clone() };
+        let e = if held.is_empty() {
+            vec![[0.0f32; 3]; rows.len()]
+        } else {
+            match cpu.irradiance(&held_vis, &held_model.lights) {
+                Ok(e) => e,
+                Err(err) => {
+                    self.failure = Some(err);
+                    return self.run_phase_moving(name, phase, &js);
+                }
+            }
+        };
+        bases.held = Some(model::forward(&held_model, &rows, &bases, &held_vis, &e).total);
+        let gathered: Vec<[f64; 3]> = match (self.model.gathered, &bases.gathered) {
+            (Some(k), Some(o)) => o.iter().map(|o| [0, 1, 2].map(|c| k[c] as f64 * o[c] as f64)).collect(),
+            _ => vec![[0.0; 3]; rows.len()],
+        };
+        let mut left = rows.less(&gathered);
+        // The penalties keep the whole data's scale (they are relative to its unlit objective).
+        left.norm2 = self.rows.norm2;
+        let part = Model { lights: js.iter().map(|&j| self.model.lights[j]).collect(), minlight: self.model.minlight, ..self.model.chain_only() };
+        let mut t = Fitter::new(&left, &bases, self.bvh, &mut cpu, self.lo, self.hi);
+        t.codec = self.codec;
+        t.min_dist = self.min_dist;
+        t.retrace_tol = self.retrace_tol;
+        t.sun_retrace_tol = self.sun_retrace_tol;
+        t.start = self.start;
+        t.deadline = self.deadline;
+        t.frozen_emitters = self.frozen_emitters;
+        // The floor is the whole model's, not the part's to move.
+        t.frozen_minlight = true;
+        t.kind_scales = self.kind_scales;
+        t.model = part;
+        t.locked = js.iter().map(|&j| self.locked[j]).collect();
+        t.vis = self.vis.select_rows(&js, &reach);
+        t.phase_index = self.phase_index;
+        let mut summary = t.run_phase(name, phase);
+        let (part, part_vis, history, trace_s, phase_index, evaluations) = (std::mem::take(&mut t.model), std::mem::take(&mut t.vis), std::mem::take(&mut t.history), t.trace_s, t.phase_index, t.evaluations);
+        if let Some(err) = t.failure.take() {
+            self.failure.get_or_insert(err);
+        }
+        drop(t);
+        // The rows outside the reach, in the error's units (squared, relative): what the
+        // whole model's error adds to the part's at the start.
+        let outside = (rel_error_now.powi(2) - summary.rel_error_before.powi(2)).max(0.0);
+        let whole = |e: f64| (e * e + outside).sqrt();
+        let f_outside = 0.5 * outside * self.rows.norm2;
+        summary.rel_error_before = whole(summary.rel_error_before);
+        summary.rel_error_after = whole(summary.rel_error_after);
+        for (&j, l) in js.iter().zip(&part.lights) {
+            self.model.lights[j] = *l;
+        }
+        // A light re-traced on the reach has no bits for the other rows: traced again when
+        // the caller next refreshes. The others keep their whole bits.
+        for (k, &j) in js.iter().enumerate() {
+            if part_vis.traced_at[k] != self.vis.traced_at[j] || part_vis.traced_reach[k] != self.vis.traced_reach[j] {
+                self.vis.traced_at[j] = Vec3::INFINITY;
+            }
+        }
+        self.vis.rays += part_vis.rays;
+        self.evaluations += evaluations;
+        self.history.extend(history.into_iter().map(|r| IterRecord { lights: n, rel_error: whole(r.rel_error), objective: r.objective + f_outside, ..r }));
+        self.trace_s += trace_s;
+        self.phase_index = phase_index;
+        self.phases.push(summary.clone());
+        summary
+    }
+
     /// [`Fitter::run_phase`] moving only the lights `js` (with the model's terms), the other
     /// lights held as they are. Where the model's radiance is the sum of its lights' (no
     /// minlight floor across them, no bounce whose scale the phase moves), the held
@@ -553,5 +651,60 @@ mod tests {
             assert_eq!(fit.model.lights[j], start.lights[j], "held light {j} changed (locked)");
         }
         assert_eq!(fit.locked, vec![false; 4], "the locks are given back");
+    }
+
+    /// The room split by a wall at x = 2 (floor to ceiling, front to back), two lights on
+    /// each side, through dirt and an ambient (no filter: its light would cross the
+    /// wall's rows); the data another four lights' radiance.
+    fn two_rooms() -> (crate::scene::Mesh, Rows, Bases, Model) {
+        let (mut mesh, mut rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[2.0, 0.0, 0.0], [2.0, 2.5, 0.0], [2.0, 2.5, 3.0], [2.0, 0.0, 3.0]], Vec3::X);
+        let n = rows.len();
+        let bases = Bases { dirt: vec![crate::model::compile::DirtBasis { settings: crate::scene::DirtSettings::Q3MAP2, factor: (0..n).map(|i| 0.7 + 0.03 * (i % 10) as f32).collect() }], ..Bases::default() };
+        let at = |x: f32, y: f32, z: f32, i: f32| Light::point(Vec3::new(x, y, z), [i, 0.8 * i, 0.6 * i]);
+        let truth = Model { lights: vec![at(0.7, 1.9, 0.6, 4.0), at(1.2, 1.2, 2.2, 3.0), at(3.1, 0.6, 2.4, 2.0), at(3.3, 2.0, 0.9, 5.0)], dirt: Some(crate::scene::DirtSettings::Q3MAP2), ambient: Some([0.05; 3]), ..Model::default() };
+        let bvh = Bvh::build(&mesh);
+        data_from_model(&mut rows, &bases, &bvh, &truth, 0.01);
+        let start = Model { lights: vec![at(0.8, 1.8, 0.7, 3.0), at(1.5, 1.0, 1.8, 2.0), at(3.0, 0.8, 2.2, 3.0), at(3.0, 1.8, 1.1, 3.0)], ambient: Some([0.08; 3]), ..truth };
+        (mesh, rows, bases, start)
+    }
+
+    /// A phase on the moving lights' reach sees the whole model there (its start is the
+    /// whole model's error once the rows outside are added back, to rounding, with and
+    /// without a minlight floor across the lights), fits, moves only its lights, runs on
+    /// fewer rows than the map has, and hands back a cache that the next refresh re-traces
+    /// where it must (the state's error is then the phase's last: the light stayed on its
+    /// side of the wall).
+    #[test]
+    fn a_phase_on_the_reach_fits_the_whole_model_there() {
+        let (mesh, rows, bases, start) = two_rooms();
+        let bvh = Bvh::build(&mesh);
+        let (lo, hi) = mesh.bounds();
+        let lbfgs = |its| Phase { algorithm: Algorithm::Lbfgs { step: 0.5 }, params: ParamSet::ALL, max_iterations: its };
+        for minlight in [None, Some([0.12f32; 3])] {
+            let mut cpu = Cpu::new(&rows, &bvh);
+            let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+            fit.model = Model { minlight, ..start.clone() };
+            fit.locked = vec![false; 4];
+            let whole = fit.eval().rel_error;
+            let reach = fit.vis.reached_rows(&[1]);
+            assert!(reach.len() > rows.len() / 4 && reach.len() < rows.len() * 3 / 4, "light 1 reaches {} of {} rows", reach.len(), rows.len());
+            let s0 = fit.run_phase_on_reach("none", lbfgs(0), &[1], whole);
+            assert!((s0.rel_error_before - whole).abs() <= 1e-6 * whole, "{minlight:?}: the part's start {} is not the whole model's {whole}", s0.rel_error_before);
+            let s = fit.run_phase_on_reach("one", lbfgs(20), &[1], whole);
+            assert!(s.rel_error_after < whole - 1e-3, "{minlight:?}: the phase did not fit: {whole} -> {}", s.rel_error_after);
+            for j in [0, 2, 3] {
+                assert_eq!(fit.model.lights[j], start.lights[j], "held light {j} changed");
+            }
+            assert_eq!(fit.model.minlight, minlight, "the floor is held");
+            assert_eq!(fit.model.ambient, start.ambient, "the ambient is held");
+            assert!(fit.model.lights[1].pos.distance(start.lights[1].pos) > 1e-3, "light 1 did not move");
+            assert!(fit.model.lights[1].pos.x < 2.0, "light 1 crossed the wall");
+            fit.refresh_visibility();
+            assert_eq!(fit.vis.traced_at[1], fit.model.lights[1].pos, "the moved light was traced again over all rows");
+            let after = fit.eval().rel_error;
+            assert!((after - s.rel_error_after).abs() <= 1e-3 * after, "{minlight:?}: the state's error {after} is not the phase's last {}", s.rel_error_after);
+            assert!(fit.history.iter().all(|r| r.lights == 4 && r.rel_error >= s.rel_error_after - 1e-9), "the records are the whole model's");
+        }
     }
 }

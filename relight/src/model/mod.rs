@@ -18,11 +18,12 @@
 //! D   = sum_lights + sun + sky + sum_surfaces            irradiance of the emitters, W/m^2
 //! T_0 = dirt (ambient + Filter D)
 //! T_n = dirt Filter (k K rho T_{n-1})                     n = 1 .. bounces
-//! x   = albedo / pi max(sum_n T_n, minlight)  (+ k_g o)    radiance
+//! x   = albedo / pi max(sum_n T_n (+ H), minlight)  (+ k_g o)    radiance
 //! ```
 //!
 //! (`o` is the data's own gathered bounce, [`crate::gather`], used only where the
-//! operator `K` is not available: the placement's subsample.) The objective is
+//! operator `K` is not available: the placement's subsample. `H`, [`Bases::held`], is the
+//! light of emitters held out of a fit of some lights.) The objective is
 //! [`crate::rows::residual`] summed over rows and channels. Its gradient runs the chain
 //! backwards: `rho_x -> rho_T` (zero where the floor holds) `-> rho_0 = sum_n (G^T)^n
 //! rho_T` with `G = dirt Filter k K rho` (`rho`: the bounce reflectance), `-> rho_D = Filter^T (dirt rho_0)`, and
@@ -111,6 +112,11 @@ pub struct Bases {
     pub gathered: Option<Vec<[f32; 3]>>,
     /// Sky flag of every mesh triangle (sunlight passes sky).
     pub sky_triangles: Vec<bool>,
+    /// Light of emitters held out of the model, per row and channel, in the units of the
+    /// chain's total `T` (W/m^2, after dirt and filter): added to `T` before the minlight
+    /// floor. A fit of some lights with the rest held
+    /// ([`crate::fit::Fitter::run_phase_on_reach`]) carries the rest here.
+    pub held: Option<Vec<[f64; 3]>>,
 }
 
 impl Bases {
@@ -145,6 +151,7 @@ impl Bases {
             bounces: 0,
             gathered: self.gathered.as_ref().map(|o| take.iter().map(|&i| o[i]).collect()),
             sky_triangles: self.sky_triangles.clone(),
+            held: self.held.as_ref().map(|h| take.iter().map(|&i| h[i]).collect()),
         }
     }
 }
@@ -267,7 +274,7 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
         }
     }
     let mut total = passes[0].clone();
-    for p in &passes[1..] {
+    for p in passes[1..].iter().chain(&bases.held) {
         total.par_iter_mut().zip(p).for_each(|(t, v)| (0..3).for_each(|c| t[c] += v[c]));
     }
     let x = (0..n)
@@ -608,6 +615,7 @@ mod tests {
             bounces: 3,
             gathered: Some((0..n).map(|i| [0.01 * (i % 4) as f32, 0.02, 0.015]).collect()),
             sky_triangles: vec![true; mesh.triangles.len()],
+            held: None,
         };
         let model = Model {
             lights: vec![

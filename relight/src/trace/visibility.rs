@@ -156,6 +156,41 @@ impl Visibility {
         }
     }
 
+    /// The rows that any of the lights `js` reaches as last traced, ascending.
+    pub fn reached_rows(&self, js: &[usize]) -> Vec<usize> {
+        let words = js.iter().map(|&j| self.bits[j].len()).max().unwrap_or(0);
+        let mut union = vec![0u32; words];
+        for &j in js {
+            union.iter_mut().zip(&self.bits[j]).for_each(|(u, &w)| *u |= w);
+        }
+        let mut rows = Vec::new();
+        each_set_bit(&union, 0..32 * words, |i| rows.push(i));
+        rows
+    }
+
+    /// The cache of the lights `js` (in that order) and the sun over the rows `keep` only:
+    /// row `k` of the result is row `keep[k]` of this one. The traced positions and reaches
+    /// stay; the cached unit factors are dropped.
+    pub fn select_rows(&self, js: &[usize], keep: &[usize]) -> Visibility {
+        let pick = |bits: &[u32]| -> Vec<u32> {
+            let mut out = vec![0u32; keep.len().div_ceil(32)];
+            for (k, &i) in keep.iter().enumerate() {
+                if bits.get(i >> 5).is_some_and(|w| w >> (i & 31) & 1 == 1) {
+                    out[k >> 5] |= 1 << (k & 31);
+                }
+            }
+            out
+        };
+        Visibility {
+            bits: js.iter().map(|&j| pick(&self.bits[j])).collect(),
+            traced_at: js.iter().map(|&j| self.traced_at[j]).collect(),
+            traced_reach: js.iter().map(|&j| self.traced_reach[j]).collect(),
+            units: Vec::new(),
+            sun: self.sun.as_ref().map(|(d, b)| (*d, pick(b))),
+            rays: 0,
+        }
+    }
+
     /// Puts back what [`Visibility::select`] took out as `part` (its lights `js`, the sun),
     /// with the rays it traced since.
     pub fn put_back(&mut self, js: &[usize], part: Visibility) {
