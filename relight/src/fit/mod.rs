@@ -706,5 +706,19 @@ mod tests {
             assert!((after - s.rel_error_after).abs() <= 1e-3 * after, "{minlight:?}: the state's error {after} is not the phase's last {}", s.rel_error_after);
             assert!(fit.history.iter().all(|r| r.lights == 4 && r.rel_error >= s.rel_error_after - 1e-9), "the records are the whole model's");
         }
+        // A light outside the rooms (its cache cleared: the rows on the walls' edges see
+        // past them) reaches no row: a phase on no rows ends where it began.
+        let mut cpu = Cpu::new(&rows, &bvh);
+        let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+        fit.model = start.clone();
+        fit.model.lights.push(Light::point(Vec3::new(-1.0, 1.0, 1.0), [1.0; 3]));
+        fit.locked = vec![false; 5];
+        fit.refresh_visibility();
+        fit.vis.bits[4].iter_mut().for_each(|w| *w = 0);
+        let whole = fit.eval().rel_error;
+        assert!(fit.vis.reached_rows(&[4]).is_empty());
+        let s = fit.run_phase_on_reach("none reached", lbfgs(20), &[4], whole);
+        assert!(s.rel_error_before.is_finite() && s.rel_error_after.is_finite() && (s.rel_error_before - whole).abs() <= 1e-9, "{whole}: {} -> {}", s.rel_error_before, s.rel_error_after);
+        assert_eq!(&fit.model.lights[..4], &start.lights[..], "the held lights stay");
     }
 }
