@@ -80,6 +80,21 @@ pub struct PhaseSummary {
 /// fraction (1e-4 stopped the placement's fits early on oa_dm1: 0.44 instead of 0.39).
 pub const LBFGS_REL_TOL: f64 = 1e-6;
 
+/// A fitter's parameterisation, tolerances, clock and switches: what a fitter working for
+/// another on other rows takes from it ([`Fitter::on_rows`], [`Fitter::run_phase_on_reach`]).
+#[derive(Clone, Copy)]
+struct Settings {
+    codec: Codec,
+    min_dist: f32,
+    retrace_tol: f32,
+    sun_retrace_tol: f32,
+    start: Instant,
+    deadline: Option<Instant>,
+    frozen_emitters: bool,
+    frozen_minlight: bool,
+    kind_scales: bool,
+}
+
 pub struct Fitter<'a> {
     pub rows: &'a Rows,
     pub bases: &'a Bases,
@@ -161,19 +176,12 @@ impl<'a> Fitter<'a> {
     /// counted and a backend failure.
     pub fn on_rows<R>(&mut self, rows: &Rows, f: impl FnOnce(&mut Fitter) -> R) -> R {
         debug_assert_eq!(rows.len(), self.rows.len());
+        let settings = self.settings();
         let mut t = Fitter::new(rows, self.bases, self.bvh, &mut *self.backend, self.lo, self.hi);
         t.vis = self.vis.clone();
         t.model = self.model.clone();
         t.locked = self.locked.clone();
-        t.codec = self.codec;
-        t.min_dist = self.min_dist;
-        t.retrace_tol = self.retrace_tol;
-        t.sun_retrace_tol = self.sun_retrace_tol;
-        t.start = self.start;
-        t.deadline = self.deadline;
-        t.frozen_emitters = self.frozen_emitters;
-        t.frozen_minlight = self.frozen_minlight;
-        t.kind_scales = self.kind_scales;
+        t.take_settings(settings);
         let r = f(&mut t);
         let (evaluations, failure) = (t.evaluations, t.failure.take());
         self.evaluations += evaluations;
@@ -181,6 +189,19 @@ impl<'a> Fitter<'a> {
             self.failure = failure;
         }
         r
+    }
+
+    /// What a fitter working for this one on other rows takes from it
+    /// ([`Fitter::take_settings`]).
+    fn settings(&self) -> Settings {
+        Settings { codec: self.codec, min_dist: self.min_dist, retrace_tol: self.retrace_tol, sun_retrace_tol: self.sun_retrace_tol, start: self.start, deadline: self.deadline, frozen_emitters: self.frozen_emitters, frozen_minlight: self.frozen_minlight, kind_scales: self.kind_scales }
+    }
+
+    /// Takes another fitter's parameterisation, tolerances, clock and switches.
+    fn take_settings(&mut self, s: Settings) {
+        (self.codec, self.min_dist, self.retrace_tol, self.sun_retrace_tol) = (s.codec, s.min_dist, s.retrace_tol, s.sun_retrace_tol);
+        (self.start, self.deadline) = (s.start, s.deadline);
+        (self.frozen_emitters, self.frozen_minlight, self.kind_scales) = (s.frozen_emitters, s.frozen_minlight, s.kind_scales);
     }
 
     /// True when the time limit passed or the backend failed: every loop stops.
@@ -348,7 +369,8 @@ impl<'a> Fitter<'a> {
     /// caller's last solve): the records and the summary add the rows outside the reach to
     /// the errors they report, so that they read as the whole model's. Where the model's
     /// chain spreads light between rows (a filter or a bounce on these rows), this is
-    /// [`Fitter::run_phase_moving`].
+    /// [`Fitter::run_phase_moving`]. The phase runs on the CPU (the placement's backend),
+    /// whatever this fitter's backend.
     pub fn run_phase_on_reach(&mut self, name: &str, phase: Phase, js: &[usize], rel_error_now: f64) -> PhaseSummary {
         let spreads = self.bases.filter.is_some() || self.bases.bounce.is_some();
         if spreads || self.failure.is_some() {
@@ -387,16 +409,9 @@ impl<'a> Fitter<'a> {
         left.norm2 = self.rows.norm2;
         let part = Model { lights: js.iter().map(|&j| self.model.lights[j]).collect(), minlight: self.model.minlight, ..self.model.chain_only() };
         let mut t = Fitter::new(&left, &bases, self.bvh, &mut cpu, self.lo, self.hi);
-        t.codec = self.codec;
-        t.min_dist = self.min_dist;
-        t.retrace_tol = self.retrace_tol;
-        t.sun_retrace_tol = self.sun_retrace_tol;
-        t.start = self.start;
-        t.deadline = self.deadline;
-        t.frozen_emitters = self.frozen_emitters;
+        t.take_settings(self.settings());
         // The floor is the whole model's, not the part's to move.
         t.frozen_minlight = true;
-        t.kind_scales = self.kind_scales;
         t.model = part;
         t.locked = js.iter().map(|&j| self.locked[j]).collect();
         t.vis = self.vis.select_rows(&js, &reach);
