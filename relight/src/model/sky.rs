@@ -42,21 +42,25 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
     let n = dirs.len().max(1) as f32;
     let open = !sky.iter().any(|&k| k);
     use crate::trace::bvh::Occluder;
-    // Rows in blocks of neighbours: per sun, the piece that stopped the previous row's ray
-    // and the sky triangle it crossed are tried first (the same answers).
-    let row = |i: usize, by_sun: &mut [(Occluder, Occluder)]| {
-        let mut s = 0.0f32;
-        let mut last = Occluder::default();
-        for (&w, (stopped, crossed)) in dirs.iter().zip(by_sun.iter_mut()) {
+    // Rows in blocks of neighbours, sun by sun: per sun, the piece that stopped the
+    // previous row's ray and the sky triangle it crossed are tried first, and per row the
+    // piece that stopped its previous sun (the same answers). A row's state: its sum and
+    // that piece.
+    let per_row = crate::trace::visibility::by_neighbour_blocks(
+        rows.len(),
+        dirs.len(),
+        |_| (0.0f32, Occluder::default()),
+        || (Occluder::default(), Occluder::default()),
+        |i, k, (s, last), (stopped, crossed)| {
+            let w = dirs[k];
             let n = rows.facing(i, w);
             let c = n.dot(w);
-            if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i], &mut [&mut last, stopped], crossed) {
-                s += c;
+            if c > 0.0 && crate::trace::visibility::sky_visible_from(bvh, rows.pos[i], n, w, &rows.sampling, sky, open, rows.solid_ahead[i], &mut [last, stopped], crossed) {
+                *s += c;
             }
-        }
-        s / n
-    };
-    let d = crate::trace::visibility::by_neighbour_blocks(rows.len(), || vec![(Occluder::default(), Occluder::default()); dirs.len()], |i, by_sun| row(i, by_sun));
+        },
+    );
+    let d = per_row.into_iter().map(|(s, _)| s / n).collect();
     let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / n;
     SkyBasis { d, directions: dirs.to_vec(), mean_cos_up }
 }

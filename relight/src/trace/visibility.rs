@@ -347,16 +347,28 @@ pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// Rows per block of [`by_neighbour_blocks`].
 pub const HINT_ROWS: usize = 32;
 
-/// `f(i, hints)` for every row `i < n`, in order: rayon over blocks of [`HINT_ROWS`]
-/// neighbouring rows, each block with its own `hints` (from `init`), handed from row to
-/// row, so that a row's ray to a source tries first what stopped the previous row's ray to
-/// it (the surface lights' and the sky's bases; the answers are the walks').
-pub fn by_neighbour_blocks<T: Send, H>(n: usize, init: impl Fn() -> H + Sync, f: impl Fn(usize, &mut H) -> T + Sync) -> Vec<T> {
-    let blocks: Vec<Vec<T>> = (0..n.div_ceil(HINT_ROWS))
+/// Every row `i < n`'s state (from `row`) after `f(i, k, state, hint)` over every source
+/// `k < sources` in order: rayon over blocks of [`HINT_ROWS`] neighbouring rows, and within
+/// a block source by source, each source's rays from the block's rows one after another.
+/// Those rays are near-identical, so the walks of one source find the tree's nodes in the
+/// cache where the previous row's walk left them; and each source's `hint` (from `hint`,
+/// one per block and source) is handed from row to row, so that a row's ray to a source
+/// tries first what stopped the previous row's ray to it (the surface lights' and the
+/// sky's bases; the answers are the walks'). Each row still sees its sources in order, so
+/// what it sums comes out bit for bit as a row-by-row loop would sum it.
+pub fn by_neighbour_blocks<S: Send, H>(n: usize, sources: usize, row: impl Fn(usize) -> S + Sync, hint: impl Fn() -> H + Sync, f: impl Fn(usize, usize, &mut S, &mut H) + Sync) -> Vec<S> {
+    let blocks: Vec<Vec<S>> = (0..n.div_ceil(HINT_ROWS))
         .into_par_iter()
         .map(|b| {
-            let mut hints = init();
-            (b * HINT_ROWS..((b + 1) * HINT_ROWS).min(n)).map(|i| f(i, &mut hints)).collect()
+            let rows = b * HINT_ROWS..((b + 1) * HINT_ROWS).min(n);
+            let mut states: Vec<S> = rows.clone().map(&row).collect();
+            for k in 0..sources {
+                let mut h = hint();
+                for (i, state) in rows.clone().zip(states.iter_mut()) {
+                    f(i, k, state, &mut h);
+                }
+            }
+            states
         })
         .collect();
     blocks.into_iter().flatten().collect()
