@@ -522,6 +522,36 @@ pub fn visible_hinted(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, hi
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every row gets its own state, sees every source once and in order, and the rows
+    /// come back in order; each source's hint passes from row to row within a block only.
+    #[test]
+    fn neighbour_blocks_visit_each_rows_sources_in_order() {
+        for n in [0, 1, HINT_ROWS - 1, HINT_ROWS, 3 * HINT_ROWS + 5] {
+            let sources = 7;
+            let out = by_neighbour_blocks(
+                n,
+                sources,
+                |i| (i, Vec::new()),
+                || None::<usize>,
+                |i, k, (row, seen): &mut (usize, Vec<usize>), hint: &mut Option<usize>| {
+                    assert_eq!(*row, i);
+                    // The previous row of this block that saw source k, if any.
+                    if let Some(prev) = *hint {
+                        assert!(prev + 1 == i && prev / HINT_ROWS == i / HINT_ROWS, "{prev} -> {i}");
+                    } else {
+                        assert_eq!(i % HINT_ROWS, 0, "row {i}: the hint starts fresh only at a block's first row");
+                    }
+                    *hint = Some(i);
+                    seen.push(k);
+                },
+            );
+            assert_eq!(out.len(), n);
+            for (i, (row, seen)) in out.iter().enumerate() {
+                assert_eq!((*row, seen.clone()), (i, (0..sources).collect::<Vec<_>>()));
+            }
+        }
+    }
     use crate::backend::{Backend, Cpu};
     use crate::model::bounce::hash01;
 
