@@ -522,6 +522,8 @@ pub fn visible_hinted(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, hi
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::backend::{Backend, Cpu};
+    use crate::model::bounce::hash01;
 
     /// Every row gets its own state, sees every source once and in order, and the rows
     /// come back in order; each source's hint passes from row to row within a block only.
@@ -552,8 +554,6 @@ mod tests {
             }
         }
     }
-    use crate::backend::{Backend, Cpu};
-    use crate::model::bounce::hash01;
 
     /// A light traced with the occluders of a trace nearby, or with nonsense for them,
     /// gets the bits of a trace without any; the occluders it hands on stop their rows'
