@@ -1,16 +1,28 @@
-//! A four-wide view of a [`Bvh`](crate::trace::bvh::Bvh) for the CPU's shadow walks: the
-//! binary tree collapsed so that one node holds the boxes of up to four subtrees, laid out
-//! lane by lane, and one visit tests all four against the segment (the compiler turns the
-//! lane loop into vector instructions). The binary tree stays what the WGSL walks and the
-//! first-hit walks use; this view only changes how fast the CPU finds an occluder.
+//! Four-wide views of a [`Bvh`](crate::trace::bvh::Bvh) for the CPU's walks: the binary
+//! tree collapsed so that one node holds the boxes of up to four subtrees, laid out lane
+//! by lane, and one visit tests all four against the segment (the compiler turns the lane
+//! loop into vector instructions). The binary tree stays what the WGSL walks use; these
+//! views only change how fast the CPU finds an occluder or a first hit.
 //!
-//! Its answer is the binary walk's, bit for bit. Both reach exactly the triangles whose
-//! leaf box (grown as the shadow walk grows it, [`shadow_box`]) the segment crosses: a
-//! box that passes the slab test has every box around it pass too (the slab bounds are
-//! monotone in the corners, in f32 as in the reals, and a parent's grown box holds its
-//! children's), so skipping the inner levels of the binary tree culls nothing more or
-//! less. The boxes here are the binary tree's own, grown once when the view is built,
-//! with the same f32 operations the binary walk does per visit.
+//! - The shadow view ([`Wide::new`]) holds the boxes grown as the shadow walks grow them
+//!   ([`shadow_box`]). Its answer is the binary walk's, bit for bit. Both reach exactly
+//!   the triangles whose leaf box the segment crosses: a box that passes the slab test
+//!   has every box around it pass too (the slab bounds are monotone in the corners, in
+//!   f32 as in the reals, and a parent's grown box holds its children's), so skipping
+//!   the inner levels of the binary tree culls nothing more or less. The boxes here are
+//!   the binary tree's own, grown once when the view is built, with the same f32
+//!   operations the binary walk does per visit.
+//! - The exact view ([`Wide::exact`]) holds the binary tree's boxes as they are, each
+//!   node's lanes in the binary tree's depth-first order, for the first-hit walk
+//!   ([`Wide::first_hit`]). It visits the leaves in the binary walk's order and tests each
+//!   leaf's own box again, with the binary slab test, at the distance found so far, before
+//!   its triangles: so it tests the same triangles against the same bound as the binary
+//!   walk, and names the same hit (a tie at a shared edge included), bit for bit. A lane
+//!   tested earlier, at a larger bound, only skips what the binary walk would skip (the
+//!   bound only falls, and the slab bounds are monotone in it as in the corners). That
+//!   holds where `1 / d` is finite; elsewhere `0 x inf` on a box's face gives a NaN that
+//!   the binary test's glam comparisons keep or drop by position, and
+//!   [`Bvh`](crate::trace::bvh::Bvh) walks the binary tree instead.
 //!
 //! Measured on oa_dm1's relit lights (87 lights, 326k shadow rays, one thread, 2-core
 //! Xeon): q3map2's 65,666 pieces 1.32 -> 2.34 M rays/s, the same 239,827 rays stopped.
@@ -62,14 +74,24 @@ impl Wide {
     /// children and opens the largest inner one among them until it holds four. A tree
     /// over no triangles (`triangles == 0`: one empty placeholder node) has an empty view.
     pub fn new(nodes: &[Node], triangles: usize) -> Wide {
+        Wide::collapsed(nodes, triangles, false)
+    }
+
+    /// The exact view: the binary tree's boxes as they are, each node's lanes in the
+    /// binary tree's depth-first order (its nodes' order), for [`Wide::first_hit`].
+    pub fn exact(nodes: &[Node], triangles: usize) -> Wide {
+        Wide::collapsed(nodes, triangles, true)
+    }
+
+    fn collapsed(nodes: &[Node], triangles: usize, exact: bool) -> Wide {
         let mut w = Wide { nodes: Vec::with_capacity(nodes.len() / 3 + 1) };
         if !nodes.is_empty() && triangles > 0 {
-            w.collapse(nodes, 0);
+            w.collapse(nodes, 0, exact);
         }
         w
     }
 
-    fn collapse(&mut self, nodes: &[Node], root: u32) -> u32 {
+    fn collapse(&mut self, nodes: &[Node], root: u32, exact: bool) -> u32 {
         let me = self.nodes.len();
         self.nodes.push(Node4 { lo: [[f32::INFINITY; 4]; 3], hi: [[f32::NEG_INFINITY; 4]; 3], child: [EMPTY; 4] });
         let inner = |k: u32| nodes[k as usize].count == 0;
@@ -81,15 +103,83 @@ impl Wide {
             kids.push(k + 1);
             kids.push(nodes[k as usize].right_or_first);
         }
+        if exact {
+            // The binary tree is laid out depth first: its nodes' order is its walk's.
+            kids.sort_unstable();
+        }
         for (lane, &k) in kids.iter().enumerate() {
-            let (lo, hi) = shadow_box(&nodes[k as usize]);
+            let node = &nodes[k as usize];
+            let (lo, hi) = if exact { (Vec3::from(node.min), Vec3::from(node.max)) } else { shadow_box(node) };
             for a in 0..3 {
                 self.nodes[me].lo[a][lane] = lo[a];
                 self.nodes[me].hi[a][lane] = hi[a];
             }
-            self.nodes[me].child[lane] = if inner(k) { self.collapse(nodes, k) } else { LEAF | k };
+            self.nodes[me].child[lane] = if inner(k) { self.collapse(nodes, k, exact) } else { LEAF | k };
         }
         me as u32
+    }
+
+    /// The nearest hit along `o + s d` with `s` in `(t_min, t_max)` that `accept` takes
+    /// (given the triangle and `s`), as `(s, index into tris)`; on the exact view
+    /// ([`Wide::exact`]) and for a `d` whose `1 / d` is finite, the binary walk's answer to
+    /// the bit (module docs). Among hits at the same `s`, the first in the tree's order.
+    #[inline]
+    pub fn first_hit(&self, nodes: &[Node], tris: &[Tri], o: Vec3, d: Vec3, t_min: f32, t_max: f32, accept: impl Fn(&Tri, f32) -> bool) -> Option<(f32, usize)> {
+        if tris.is_empty() || self.nodes.is_empty() {
+            return None;
+        }
+        let inv = d.recip();
+        let (oa, inva) = (o.to_array(), inv.to_array());
+        let mut best: Option<(f32, usize)> = None;
+        let mut limit = t_max;
+        // Wide nodes and binary leaves (`LEAF | leaf`), the next to visit on top.
+        let mut stack = [0u32; STACK];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let c = stack[len];
+            if c & LEAF != 0 {
+                let node = &nodes[(c & !LEAF) as usize];
+                // The binary walk's own test of this leaf, at the bound it would have here.
+                if !crate::trace::bvh::slab(node, o, inv, limit) {
+                    continue;
+                }
+                let first = node.right_or_first as usize;
+                for (k, tri) in tris[first..first + node.count as usize].iter().enumerate() {
+                    if let Some(t) = crate::trace::bvh::intersect(tri, o, d, 0.0) {
+                        if t > t_min && t < limit && accept(tri, t) {
+                            limit = t;
+                            best = Some((t, first + k));
+                        }
+                    }
+                }
+                continue;
+            }
+            let n = &self.nodes[c as usize];
+            let mut near = [0.0f32; 4];
+            let mut far = [limit; 4];
+            for a in 0..3 {
+                for l in 0..4 {
+                    let t0 = (n.lo[a][l] - oa[a]) * inva[a];
+                    let t1 = (n.hi[a][l] - oa[a]) * inva[a];
+                    near[l] = near[l].max(t0.min(t1));
+                    far[l] = far[l].min(t0.max(t1));
+                }
+            }
+            // Pushed last lane first, so that the first lane is walked first.
+            for l in (0..4).rev() {
+                let c = n.child[l];
+                if c == EMPTY || near[l] > far[l] {
+                    continue;
+                }
+                debug_assert!(len < STACK);
+                if len < STACK {
+                    stack[len] = c;
+                    len += 1;
+                }
+            }
+        }
+        best
     }
 
     /// The shadow walk over the boxes the segment `o + s d`, `s` in `[0, t_max]`, crosses:
@@ -203,6 +293,74 @@ mod tests {
             }
         }
         assert!(blocked > 5000 && open > 5000, "both answers exercised: {blocked} blocked, {open} open");
+    }
+
+    /// The binary first-hit walk, written as the reference: the stack walk
+    /// `first_hit_where` did before the exact view, left child first, each node's exact
+    /// box tested at the distance found so far.
+    fn binary_first(bvh: &Bvh, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(f32, usize)> {
+        let inv = d.recip();
+        let (mut best, mut limit) = (None, t_max);
+        let mut stack = vec![0u32];
+        while let Some(i) = stack.pop() {
+            let node = &bvh.nodes[i as usize];
+            if !slab_box(Vec3::from(node.min), Vec3::from(node.max), o, inv, limit) {
+                continue;
+            }
+            if node.count > 0 {
+                let first = node.right_or_first as usize;
+                for (k, tri) in bvh.tris[first..first + node.count as usize].iter().enumerate() {
+                    if let Some(t) = intersect(tri, o, d, 0.0) {
+                        if t > t_min && t < limit {
+                            limit = t;
+                            best = Some((t, first + k));
+                        }
+                    }
+                }
+            } else {
+                stack.push(node.right_or_first);
+                stack.push(i + 1);
+            }
+        }
+        best
+    }
+
+    /// The exact view's first hit is the binary walk's, distance and triangle, bit for bit:
+    /// the room and its 300 quads, every triangle six times (a map's doubled faces: exact
+    /// ties, more than a leaf holds, which the tree's order settles), rays from inside in every direction and along the
+    /// axes, rays from a wall's plane, rays that end short of everything.
+    #[test]
+    fn the_wide_first_hit_is_the_binary_walks() {
+        let (mut mesh, _) = crate::testutil::room(4);
+        crate::testutil::scatter_quads(&mut mesh, 300);
+        let once = mesh.triangles.len();
+        for _ in 0..5 {
+            for t in 0..once {
+                mesh.triangles.push(mesh.triangles[t]);
+                mesh.tri_material.push(mesh.tri_material[t]);
+                mesh.tri_source.push(mesh.tri_source[t]);
+            }
+        }
+        let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
+        let bvh = Bvh::build(&mesh);
+        let (mut hits, mut misses) = (0, 0);
+        for k in 0..20_000u32 {
+            let o = Vec3::new(at(k, 21), at(k, 22), at(k, 23));
+            let mut d = Vec3::new(at(k, 24), at(k, 25), at(k, 26)) - o;
+            match k % 5 {
+                0 => d.x = 0.0,
+                1 => d = Vec3::new(0.0, 0.0, d.z),
+                _ => {}
+            }
+            let o = if k % 7 == 0 { Vec3::new(0.0, o.y, o.z) } else { o };
+            let (t_min, t_max) = (if k % 2 == 0 { 0.0 } else { 1e-4 }, if k % 3 == 0 { 0.5 } else { 4.0 });
+            let wide = if d.recip().is_finite() { bvh.wide_exact.first_hit(&bvh.nodes, &bvh.tris, o, d, t_min, t_max, |_, _| true) } else { bvh.first_hit_after(o, d, t_min, t_max).map(|h| (h.0, bvh.tri_index.iter().position(|&t| t == h.1).unwrap())) };
+            let reference = binary_first(&bvh, o, d, t_min, t_max);
+            assert_eq!(wide.map(|h| (h.0.to_bits(), h.1)), reference.map(|h| (h.0.to_bits(), h.1)), "ray {k}");
+            hits += reference.is_some() as usize;
+            misses += reference.is_none() as usize;
+        }
+        assert!(hits > 5000 && misses > 2000, "both answers exercised: {hits} hits, {misses} misses");
     }
 
     /// A tree that is one leaf (a single quad) and an empty one.
