@@ -259,7 +259,10 @@ impl Bvh {
     /// default relight ended at 0.2288 instead of 0.2078.)
     fn first_hit_where(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, accept: impl Fn(&Tri, f32) -> bool) -> Option<(f32, u32)> {
         if d.recip().is_finite() {
-            return self.wide_exact.first_hit(&self.nodes, &self.tris, o, d, t_min, t_max, accept).map(|(t, k)| (t, self.tri_index[k]));
+            let inv = d.recip();
+            let leaf = |node: &Node, limit: f32| slab(node, o, inv, limit);
+            let hit = |tri: &Tri, limit: f32| intersect(tri, o, d, 0.0).filter(|&t| t > t_min && t < limit && accept(tri, t));
+            return self.wide_exact.first_hit(&self.nodes, &self.tris, o, d, t_max, leaf, hit).map(|(t, k)| (t, self.tri_index[k]));
         }
         let inv = d.recip();
         let mut best: Option<(f32, u32)> = None;
@@ -411,8 +414,7 @@ fn slab_shadow(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     slab_box(lo, hi, o, inv, t_max)
 }
 
-/// The binary walks' test of a node's exact box (the first-hit walks: [`crate::trace::wide::Wide::first_hit`]).
-pub(crate) fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
+fn slab(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     slab_box(Vec3::from(node.min), Vec3::from(node.max), o, inv, t_max)
 }
 

@@ -49,6 +49,26 @@ struct Node4 {
     child: [u32; 4],
 }
 
+impl Node4 {
+    /// Per lane: whether the segment from `o` (`inv`: `1 / d`), `s` in `[0, t_max]`,
+    /// crosses the lane's box, an empty slot never. The slab test of `slab_box` in
+    /// `bvh.rs`, four lanes at once; NaN (0 * inf on a slab face) compares false: crossed.
+    #[inline]
+    fn crossed(&self, o: [f32; 3], inv: [f32; 3], t_max: f32) -> [bool; 4] {
+        let mut near = [0.0f32; 4];
+        let mut far = [t_max; 4];
+        for a in 0..3 {
+            for l in 0..4 {
+                let t0 = (self.lo[a][l] - o[a]) * inv[a];
+                let t1 = (self.hi[a][l] - o[a]) * inv[a];
+                near[l] = near[l].max(t0.min(t1));
+                far[l] = far[l].min(t0.max(t1));
+            }
+        }
+        [0, 1, 2, 3].map(|l| self.child[l] != EMPTY && !(near[l] > far[l]))
+    }
+}
+
 #[derive(Debug, Clone, Default)]
 pub struct Wide {
     nodes: Vec<Node4>,
@@ -119,17 +139,19 @@ impl Wide {
         me as u32
     }
 
-    /// The nearest hit along `o + s d` with `s` in `(t_min, t_max)` that `accept` takes
-    /// (given the triangle and `s`), as `(s, index into tris)`; on the exact view
-    /// ([`Wide::exact`]) and for a `d` whose `1 / d` is finite, the binary walk's answer to
-    /// the bit (module docs). Among hits at the same `s`, the first in the tree's order.
+    /// The nearest hit along `o + s d` with `s` in `(0, t_max)`: `hit` gives a triangle's
+    /// `s` where it counts below the bound it is given (the caller's hit test, its `t_min`
+    /// and its filter), `leaf`
+    /// says whether a binary leaf's box is crossed up to a bound. Returns `(s, index into
+    /// tris)`. On the exact view ([`Wide::exact`]), with `leaf` the binary walk's slab
+    /// test and a `d` whose `1 / d` is finite, the binary walk's answer to the bit (module
+    /// docs). Among hits at the same `s`, the first in the tree's order.
     #[inline]
-    pub fn first_hit(&self, nodes: &[Node], tris: &[Tri], o: Vec3, d: Vec3, t_min: f32, t_max: f32, accept: impl Fn(&Tri, f32) -> bool) -> Option<(f32, usize)> {
+    pub fn first_hit(&self, nodes: &[Node], tris: &[Tri], o: Vec3, d: Vec3, t_max: f32, leaf: impl Fn(&Node, f32) -> bool, hit: impl Fn(&Tri, f32) -> Option<f32>) -> Option<(f32, usize)> {
         if tris.is_empty() || self.nodes.is_empty() {
             return None;
         }
-        let inv = d.recip();
-        let (oa, inva) = (o.to_array(), inv.to_array());
+        let (o, inv) = (o.to_array(), d.recip().to_array());
         let mut best: Option<(f32, usize)> = None;
         let mut limit = t_max;
         // Wide nodes and binary leaves (`LEAF | leaf`), the next to visit on top.
@@ -141,40 +163,28 @@ impl Wide {
             if c & LEAF != 0 {
                 let node = &nodes[(c & !LEAF) as usize];
                 // The binary walk's own test of this leaf, at the bound it would have here.
-                if !crate::trace::bvh::slab(node, o, inv, limit) {
+                if !leaf(node, limit) {
                     continue;
                 }
                 let first = node.right_or_first as usize;
                 for (k, tri) in tris[first..first + node.count as usize].iter().enumerate() {
-                    if let Some(t) = crate::trace::bvh::intersect(tri, o, d, 0.0) {
-                        if t > t_min && t < limit && accept(tri, t) {
-                            limit = t;
-                            best = Some((t, first + k));
-                        }
+                    if let Some(t) = hit(tri, limit) {
+                        limit = t;
+                        best = Some((t, first + k));
                     }
                 }
                 continue;
             }
             let n = &self.nodes[c as usize];
-            let mut near = [0.0f32; 4];
-            let mut far = [limit; 4];
-            for a in 0..3 {
-                for l in 0..4 {
-                    let t0 = (n.lo[a][l] - oa[a]) * inva[a];
-                    let t1 = (n.hi[a][l] - oa[a]) * inva[a];
-                    near[l] = near[l].max(t0.min(t1));
-                    far[l] = far[l].min(t0.max(t1));
-                }
-            }
+            let crossed = n.crossed(o, inv, limit);
             // Pushed last lane first, so that the first lane is walked first.
             for l in (0..4).rev() {
-                let c = n.child[l];
-                if c == EMPTY || near[l] > far[l] {
+                if !crossed[l] {
                     continue;
                 }
                 debug_assert!(len < STACK);
                 if len < STACK {
-                    stack[len] = c;
+                    stack[len] = n.child[l];
                     len += 1;
                 }
             }
@@ -197,23 +207,12 @@ impl Wide {
         while len > 0 {
             len -= 1;
             let n = &self.nodes[stack[len] as usize];
-            // The slab test of `slab_box` in `bvh.rs`, four lanes at once.
-            let mut near = [0.0f32; 4];
-            let mut far = [t_max; 4];
-            for a in 0..3 {
-                for l in 0..4 {
-                    let t0 = (n.lo[a][l] - o[a]) * inv[a];
-                    let t1 = (n.hi[a][l] - o[a]) * inv[a];
-                    near[l] = near[l].max(t0.min(t1));
-                    far[l] = far[l].min(t0.max(t1));
-                }
-            }
+            let crossed = n.crossed(o, inv, t_max);
             for l in 0..4 {
-                let c = n.child[l];
-                // NaN (0 * inf on a slab face) compares false: crossed, as in `slab_box`.
-                if c == EMPTY || near[l] > far[l] {
+                if !crossed[l] {
                     continue;
                 }
+                let c = n.child[l];
                 if c & LEAF != 0 {
                     let leaf = c & !LEAF;
                     let node = &nodes[leaf as usize];
@@ -354,7 +353,7 @@ mod tests {
             }
             let o = if k % 7 == 0 { Vec3::new(0.0, o.y, o.z) } else { o };
             let (t_min, t_max) = (if k % 2 == 0 { 0.0 } else { 1e-4 }, if k % 3 == 0 { 0.5 } else { 4.0 });
-            let wide = if d.recip().is_finite() { bvh.wide_exact.first_hit(&bvh.nodes, &bvh.tris, o, d, t_min, t_max, |_, _| true) } else { bvh.first_hit_after(o, d, t_min, t_max).map(|h| (h.0, bvh.tri_index.iter().position(|&t| t == h.1).unwrap())) };
+            let wide = if d.recip().is_finite() { bvh.wide_exact.first_hit(&bvh.nodes, &bvh.tris, o, d, t_max, |n, limit| slab_box(Vec3::from(n.min), Vec3::from(n.max), o, d.recip(), limit), |tri, limit| intersect(tri, o, d, 0.0).filter(|&t| t > t_min && t < limit)) } else { bvh.first_hit_after(o, d, t_min, t_max).map(|h| (h.0, bvh.tri_index.iter().position(|&t| t == h.1).unwrap())) };
             let reference = binary_first(&bvh, o, d, t_min, t_max);
             assert_eq!(wide.map(|h| (h.0.to_bits(), h.1)), reference.map(|h| (h.0.to_bits(), h.1)), "ray {k}");
             hits += reference.is_some() as usize;
