@@ -50,6 +50,20 @@ enum Col {
     Gathered,
 }
 
+/// Light `j`'s per-unit direct irradiance ([`lights::g`], W/m^2 per W/sr) at each row of
+/// `range` it reaches, in row order: from its cached unit list where there is one.
+#[inline]
+fn unit_g(rows: &crate::rows::Rows, vis: &crate::trace::visibility::Visibility, units: &[Option<std::sync::Arc<crate::trace::visibility::UnitList>>], all: &[crate::model::Light], j: usize, range: std::ops::Range<usize>, mut f: impl FnMut(usize, f32)) {
+    let l = &all[j];
+    match units.get(j).and_then(Option::as_ref) {
+        Some(list) => {
+            let top = l.max_rgb();
+            vis.for_each_visible_with(j, range, list, |i, g| f(i, lights::cut_by(g, top, &rows.sampling)))
+        }
+        None => vis.for_each_visible(j, range, |i| f(i, lights::g(rows, i, l))),
+    }
+}
+
 /// One block of rows' share of the normal equations, over the unknowns the block has.
 struct BlockGram {
     /// The block's unknowns, ascending.
@@ -382,8 +396,11 @@ impl Fitter<'_> {
             return f64::NAN;
         }
         let entry = self.model.clone();
-        let e_entry = self.value_frozen(&entry).rel_error;
-        let e = self.solve_linear();
+        // The entry's forward chain is the solve's first round's (the same model and
+        // visibility): evaluated once.
+        let (ev, landed) = self.value_frozen_and_forward(&entry);
+        let e_entry = ev.rel_error;
+        let e = self.solve_linear_from(landed);
         if e_entry < e || (e.is_nan() && self.failure.is_none()) {
             self.model = entry;
             self.refresh_visibility();
@@ -396,6 +413,12 @@ impl Fitter<'_> {
     /// while the rows at the minlight floor change; for a caller that compares the states
     /// itself and cannot afford the entry's evaluation (the placement's tries).
     pub fn solve_linear(&mut self) -> f64 {
+        self.solve_linear_from(None)
+    }
+
+    /// [`Fitter::solve_linear`] given the current model's forward chain where the caller
+    /// has it (the same visibility).
+    fn solve_linear_from(&mut self, mut landed: Option<crate::model::Forward>) -> f64 {
         let censored = self.rows.any_censored();
         if self.model.minlight.is_none() && !censored {
             self.fit_linear_once(censored, None);
@@ -408,7 +431,6 @@ impl Fitter<'_> {
         let rounds = if self.model.minlight.is_some() { MINLIGHT_ROUNDS } else { CENSORED_ROUNDS };
         // Each round's sets come from the model the previous round left, whose radiance
         // that round's evaluation computed: taken from there, not computed twice.
-        let mut landed: Option<crate::model::Forward> = None;
         for _ in 0..rounds {
             self.fit_linear_once(censored, landed.take());
             if self.failure.is_some() {
@@ -506,13 +528,6 @@ impl Fitter<'_> {
         // The lights' cached unit factors (the linear fits of pruning, merging and the
         // terms' decisions see the same lights again and again).
         let units = if kind_cols.is_none() { lights::unit_lists(rows, &self.vis, &m.lights, true) } else { Vec::new() };
-        let unit_g = |j: usize, range: std::ops::Range<usize>, f: &mut dyn FnMut(usize, f32)| {
-            let l = &m.lights[j];
-            match units.get(j).and_then(Option::as_ref) {
-                Some(list) => self.vis.for_each_visible_with(j, range, list, |i, g| f(i, lights::cut(g, l, &rows.sampling))),
-                None => self.vis.for_each_visible(j, range, |i| f(i, lights::g(rows, i, l))),
-            }
-        };
         // Per row of a block: (column, per-unit direct irradiance) for the sparse path, in
         // column order; the gathered column is in radiance already. Light columns run
         // over the rows their light reaches (`for_each_visible`), the rest row by row.
@@ -528,7 +543,9 @@ impl Fitter<'_> {
                 };
                 match *col {
                     // The falloff cut depends on the intensity: taken at the current one.
-                    Col::Light(j) => unit_g(j, block.clone(), &mut |i, g| put(i, g as f64)),
+                    // Generic, not through `&mut dyn` (a call per entry): this loop took
+                    // twice as long so on oa_dm1.
+                    Col::Light(j) => unit_g(rows, &self.vis, &units, &m.lights, j, block.clone(), |i, g| put(i, g as f64)),
                     Col::Sun => {
                         if let Some(s) = m.sun {
                             block.clone().for_each(|i| put(i, s.cos_at(rows, &self.vis, i) as f64));
@@ -584,7 +601,7 @@ impl Fitter<'_> {
                 .map(|col| match *col {
                     Col::Light(j) => {
                         let mut d = Vec::new();
-                        unit_g(j, 0..n, &mut |i, g| {
+                        unit_g(rows, &self.vis, &units, &m.lights, j, 0..n, |i, g| {
                             if g != 0.0 {
                                 d.push((i as u32, g));
                             }
@@ -909,11 +926,19 @@ mod tests {
         assert!(e <= e_entry + 1e-12, "fit_linear ended above its entry: {e_entry} -> {e}");
         assert_eq!(e, fit.eval().rel_error, "the error returned is the state's");
         // From a state the solve improves on, the solve is taken.
-        fit.model = Model { lights: vec![Light::point(Vec3::new(2.0, 1.25, 1.5), [1e-3; 3])], ..Model::default() };
+        let dim = Model { lights: vec![Light::point(Vec3::new(2.0, 1.25, 1.5), [1e-3; 3])], ..Model::default() };
+        fit.model = dim.clone();
         let e_dim = fit.eval().rel_error;
         let e2 = fit.fit_linear();
         assert!(e2 < e_dim - 0.02, "the solve was not taken: {e_dim} -> {e2}");
         assert!(e2.is_finite());
+        // `fit_linear` hands the entry's forward chain to the solve's first round: the
+        // solve that runs its own lands on the same bits.
+        let landed = fit.model.clone();
+        fit.model = dim;
+        fit.refresh_visibility();
+        let e3 = fit.solve_linear();
+        assert_eq!((e3.to_bits(), &fit.model), (e2.to_bits(), &landed), "the entry's chain is not the first round's");
     }
 
     /// With one multiplier per kind (the globals fit), the filter and the bounce are in the

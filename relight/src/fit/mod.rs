@@ -302,15 +302,21 @@ impl<'a> Fitter<'a> {
     /// The objective and error of `m` (no gradient) with the visibility cache as it is (no
     /// re-trace): a line-search trial.
     pub fn value_frozen(&mut self, m: &Model) -> Eval {
+        self.value_frozen_and_forward(m).0
+    }
+
+    /// [`Fitter::value_frozen`] and the forward chain it ran (`None` where it re-traced
+    /// or failed): the linear fit's first round needs the entry's radiance.
+    fn value_frozen_and_forward(&mut self, m: &Model) -> (Eval, Option<model::Forward>) {
         if self.failure.is_some() || self.vis.bits.len() != m.lights.len() || self.vis.sun.is_some() != m.sun.is_some() {
-            return self.eval_model(m);
+            return (self.eval_model(m), None);
         }
         self.evaluations += 1;
-        match model::value(m, self.rows, self.bases, &self.vis, self.backend) {
-            Ok(ev) => ev,
+        match model::value_and_forward(m, self.rows, self.bases, &self.vis, self.backend) {
+            Ok((ev, fw)) => (ev, Some(fw)),
             Err(e) => {
                 self.failure = Some(e);
-                Eval::failed(m)
+                (Eval::failed(m), None)
             }
         }
     }

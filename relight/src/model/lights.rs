@@ -194,7 +194,14 @@ pub fn g_uncut(rows: &Rows, i: usize, l: &Light) -> f32 {
 /// [`Sampling::falloff`].
 #[inline]
 pub fn cut(g: f32, l: &Light, s: &Sampling) -> f32 {
-    if s.falloff > 0.0 && l.max_rgb() * g <= s.falloff {
+    cut_by(g, l.max_rgb(), s)
+}
+
+/// [`cut`] given the light's brightest channel ([`Light::max_rgb`], W/sr): for a loop
+/// over one light's rows, which takes it once.
+#[inline]
+pub fn cut_by(g: f32, max_rgb: f32, s: &Sampling) -> f32 {
+    if s.falloff > 0.0 && max_rgb * g <= s.falloff {
         return 0.0;
     }
     g
@@ -304,7 +311,10 @@ pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 
                 }
             };
             match &units[j] {
-                Some(list) => vis.for_each_visible_with(j, base..base + block.len(), list, |i, g| add(i, cut(g, l, &rows.sampling))),
+                Some(list) => {
+                    let top = l.max_rgb();
+                    vis.for_each_visible_with(j, base..base + block.len(), list, |i, g| add(i, cut_by(g, top, &rows.sampling)))
+                }
                 None => vis.for_each_visible(j, base..base + block.len(), |i| add(i, g(rows, i, l))),
             }
         }
