@@ -219,7 +219,7 @@ impl Visibility {
 /// Calls `f(row)` for every set bit of `bits` in `rows`, in ascending order, 32 rows per
 /// word (a word with no bit set costs one test).
 #[inline]
-fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
+pub fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
     if rows.is_empty() {
         return;
     }
