@@ -115,9 +115,6 @@ fn sample_convert_then_relight_recovers_the_light_entities() {
     let placed = r["auto"]["errors"].as_array().unwrap().last().unwrap().as_f64().unwrap();
     let start = r["rel_error_initial"].as_f64().unwrap();
     assert!(start <= placed * 1.1, "the fit starts at {start}, the placement ended at {placed}");
-    // Its three lights placed, most candidates promise under a tenth of what a light must
-    // gain: booked as failed without their refits (same lights, same error).
-    assert!(r["auto"]["skipped_tries"].as_u64().unwrap() >= 5, "{}", r["auto"]);
     assert!(r["iterations"].as_array().unwrap().len() > 3, "iterations are reported");
     let png = image::open(&plot).expect("the plot is a PNG").to_rgb8();
     assert!(png.width() >= 600);

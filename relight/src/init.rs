@@ -108,9 +108,6 @@ pub struct AutoStats {
     /// little (their round then tries the best candidates one at a time).
     pub batches: usize,
     pub failed_batches: usize,
-    /// Of the failed tries and batches, those booked failed without their refit: their
-    /// promise was under a tenth of the least gain kept ([`PROMISE_MARGIN`]).
-    pub skipped_tries: usize,
     /// Relative error on the subsample after each try that added lights (a batch counts once).
     pub errors: Vec<f64>,
     /// Where the placement's wall time went, s (what does not scale with cores shows
@@ -191,7 +188,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     for (l, &k) in model.lights.iter().zip(locked) {
         fit.add_light(*l, k);
     }
-    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, failed_tries: 0, batches: 0, failed_batches: 0, skipped_tries: 0, errors: Vec::new(), time_s: AutoTimes::default(), history: Vec::new() };
+    let mut stats = AutoStats { sample_vertices: sub.len(), candidates_tried: 0, added: 0, failed_tries: 0, batches: 0, failed_batches: 0, errors: Vec::new(), time_s: AutoTimes::default(), history: Vec::new() };
     let clock = std::time::Instant::now;
     let trace0 = fit.trace_s;
     let mut err = fit.fit_linear();
@@ -317,11 +314,7 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
         let mut added = false;
         if fit.model.lights.len() >= REFIT_ALL_UP_TO && !fit.out_of_time() {
             let members = batch(&sub, dirt, &visible, &scored, key, (max_lights - fit.model.lights.len()).min(BATCH_LIGHTS));
-            if members.len() > 1 && hopeless(err, &scored[members[0]], sub.norm2, min_gain) {
-                // Its best member promises too little for one light, let alone all.
-                stats.failed_batches += 1;
-                stats.skipped_tries += 1;
-            } else if members.len() > 1 {
+            if members.len() > 1 {
                 let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
                 let news: Vec<Light> = members.iter().map(|&m| candidate_light(&scored[m])).collect();
                 let e = try_lights(&mut fit, &sub, dirt, &news, &mut stats.time_s);
@@ -352,14 +345,6 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
             if !(best.0 > 0.0) || fit.out_of_time() {
                 break;
             }
-            if hopeless(err, best, sub.norm2, min_gain) {
-                // Booked as the refit would end: failed, the model as it was.
-                failed.push(sub.pos[picked[best.3]]);
-                stats.failed_tries += 1;
-                stats.skipped_tries += 1;
-                fails_in_row += 1;
-                continue;
-            }
             let saved = (fit.model.clone(), fit.locked.clone(), fit.vis.clone());
             let e = try_lights(&mut fit, &sub, dirt, &[candidate_light(best)], &mut stats.time_s);
             if err - e < min_gain {
@@ -387,31 +372,6 @@ pub fn auto(mesh: &Mesh, rows: &Rows, bases: &Bases, bvh: &Bvh, lo: Vec3, hi: Ve
     stats.time_s.trace = fit.trace_s - trace0;
     stats.history = std::mem::take(&mut fit.history);
     (fit.model.clone(), stats)
-}
-
-/// How far a refitted candidate can outdo its promise ([`promised_gain`]): one whose
-/// promise times this is under the least gain kept is booked as failed without its refit
-/// ([`hopeless`]). Measured over the 187 tries of the default relights of oa_dm1 and the
-/// truth set (each try's refitted gain over its promise): 0.01-12.5, one try above 7.8
-/// (oacmpdm2: promised 5.7e-5, gained 7.2e-4); every try that promised under a tenth of
-/// the least gain failed (4 there, 7 on the bundled sample, where those refits were half
-/// of the placement's time). At the largest ratio seen, a try booked failed would have
-/// gained at most 1.25 times the least gain.
-const PROMISE_MARGIN: f64 = 10.0;
-
-/// Whether candidate `c` cannot gain `min_gain` once refitted ([`PROMISE_MARGIN`]), at
-/// the relative error `err` on rows of squared norm `norm2`.
-fn hopeless(err: f64, c: &Scored, norm2: f64, min_gain: f64) -> bool {
-    promised_gain(err, c.0, norm2) * PROMISE_MARGIN < min_gain
-}
-
-/// The relative error a candidate's score (the drop of the weighted squared residual, its
-/// light alone at its best intensity) takes off `err`, on rows of squared norm `norm2`.
-fn promised_gain(err: f64, score: f64, norm2: f64) -> f64 {
-    if !(norm2 > 0.0) {
-        return 0.0;
-    }
-    err - ((err * err * norm2 - score).max(0.0) / norm2).sqrt()
 }
 
 /// A scored candidate: (score, position, intensity per channel, index of its row in the
@@ -694,19 +654,8 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
 mod tests {
     use glam::Vec3;
 
-    use super::{batch, promised_gain, Scored, BATCH_LIGHTS};
+    use super::{batch, Scored, BATCH_LIGHTS};
     use crate::testutil::room;
-
-    /// A promise is the relative error its score (a drop of the squared residual) takes
-    /// off: from 0.5 on rows of squared norm 4, a score of 0.75 leaves 0.25; a score past
-    /// what is left leaves nothing; no score, or no rows, promises nothing.
-    #[test]
-    fn a_promise_is_the_error_its_score_takes_off() {
-        assert!((promised_gain(0.5, 0.75, 4.0) - 0.25).abs() < 1e-12);
-        assert_eq!(promised_gain(0.5, 2.0, 4.0), 0.5);
-        assert_eq!(promised_gain(0.5, 0.0, 4.0), 0.0);
-        assert_eq!(promised_gain(0.5, 1.0, 0.0), 0.0);
-    }
 
     /// A batch takes the best candidate, then those over other rows that promise at least
     /// half as much and whose light falls on rows none taken reaches; no more than asked.
