@@ -525,6 +525,20 @@ mod tests {
     use crate::backend::{Backend, Cpu};
     use crate::model::bounce::hash01;
 
+    /// The set bits within a range, each once, in ascending order: what testing every
+    /// row's bit gives (ranges that start and end inside a word, at a word's edge, empty,
+    /// and past the bits' end).
+    #[test]
+    fn each_set_bit_visits_what_a_test_of_every_bit_visits() {
+        let bits: Vec<u32> = (0..5u32).map(|w| (hash01(w, 7) * u32::MAX as f32) as u32 & (hash01(w, 8) * u32::MAX as f32) as u32).collect();
+        for (start, end) in [(0, 160), (3, 29), (31, 33), (32, 64), (40, 40), (5, 200), (150, 170), (64, 65)] {
+            let mut seen = Vec::new();
+            each_set_bit(&bits, start..end, |i| seen.push(i));
+            let every: Vec<usize> = (start..end.min(160)).filter(|&i| bits[i >> 5] >> (i & 31) & 1 == 1).collect();
+            assert_eq!(seen, every, "rows {start}..{end}");
+        }
+    }
+
     /// Every row gets its own state, sees every source once and in order, and the rows
     /// come back in order; each source's hint passes from row to row within a block only.
     #[test]
