@@ -1,5 +1,5 @@
-// Shadow rays through the BVH of relight/src/bvh.rs (same layout, same tests; the CPU
-// reference is `Bvh::occluded` and `visibility::visible_from`).
+// Shadow rays through the BVH of relight/src/trace/tree.rs (same layout, same tests; the CPU
+// reference is `Tree::occluded` and `visibility::visible_from`).
 //
 // Node: an interior node's left child is the next node, `right_or_first` its right child;
 // a leaf (count > 0) holds triangles right_or_first .. right_or_first + count.

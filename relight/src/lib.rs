@@ -17,6 +17,7 @@
 pub mod atlas;
 pub mod backend;
 pub mod bake;
+pub mod casters;
 pub mod error;
 pub mod fit;
 pub mod gather;

@@ -758,7 +758,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
 
     progress.stage("bvh");
     let bvh = Bvh::occluders(&scene);
-    let shadow_pieces = bvh.shadow.as_ref().map(|s| s.bvh.tris.len());
+    let shadow_pieces = bvh.shadow.as_ref().map(|s| s.tree.tris.len());
     st.done("bvh");
 
     progress.stage("rows");

@@ -399,7 +399,7 @@ pub struct Scene {
     /// `q3_casters` and its buffer view, written by convert): relight's shadow rays test
     /// q3map2's pieces of them ([`crate::trace::pieces`]). `None` when the file does not
     /// carry them (a Blender export drops the view): then the mesh's triangles cast.
-    pub casters: Option<crate::trace::pieces::Casters>,
+    pub casters: Option<crate::casters::Casters>,
 }
 
 /// What relight recorded of its fitted model in the scene's extras (`q3_relight`): the

@@ -392,9 +392,9 @@ impl GpuBackend {
         let gr: Vec<GpuRow> = (0..rows.len()).map(|i| GpuRow { pos: rows.pos[i].to_array(), pad0: 0.0, normal: rows.normal[i].to_array(), two_sided: if rows.two_sided[i] { 1.0 } else { 0.0 } }).collect();
         let max = ctx.max_binding();
         // The shadow rays' tree: q3map2's pieces where the scene carries them.
-        let (shadow, bounds): (&Bvh, Vec<GpuBound>) = match &bvh.shadow {
-            Some(s) => (&s.bvh, s.bound.iter().zip(&s.parent).map(|(b, &parent)| GpuBound { plane: *b, parent, pad: [0; 3] }).collect()),
-            None => (bvh, vec![GpuBound { plane: [0.0; 4], parent: crate::trace::pieces::NO_PARENT, pad: [0; 3] }]),
+        let (shadow, bounds): (&crate::trace::tree::Tree, Vec<GpuBound>) = match &bvh.shadow {
+            Some(s) => (&s.tree, s.bound.iter().zip(&s.parent).map(|(b, &parent)| GpuBound { plane: *b, parent, pad: [0; 3] }).collect()),
+            None => (&bvh.tree, vec![GpuBound { plane: [0.0; 4], parent: crate::trace::pieces::NO_PARENT, pad: [0; 3] }]),
         };
         if gr.len() * std::mem::size_of::<GpuRow>() > max || shadow.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max || bounds.len() * std::mem::size_of::<GpuBound>() > max {
             return Err(Error::Gpu(format!("the rows or the BVH exceed the adapter's storage binding limit of {max} bytes")));
@@ -669,7 +669,7 @@ mod tests {
         // The casters in Quake units (glTF (x, y, z) = Quake (x, z, -y) * 0.0254), a tree of
         // two planes through the room (x = 40, then z = 30 on its front side).
         let s = 0.0254f64;
-        let mut c = crate::trace::pieces::Casters {
+        let mut c = crate::casters::Casters {
             planes: vec![(glam::DVec3::X, 40.0), (glam::DVec3::Z, 30.0)],
             nodes: vec![(0, [1, -1]), (1, [-2, -3])],
             leaf_solid: vec![false; 3],

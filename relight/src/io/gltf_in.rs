@@ -591,7 +591,7 @@ pub fn read_slice(bytes: &[u8], base: Option<&Path>, shown: &Path, limits: &Limi
         Some(v) => {
             let view = v.get("bufferView").and_then(Value::as_u64).and_then(|i| doc.views().nth(i as usize));
             let bytes = view.as_ref().and_then(|view| view_range(view, &buffers).map(|r| &buffers[view.buffer().index()][r]));
-            match bytes.ok_or_else(|| "its buffer view is missing".to_string()).and_then(|b| crate::trace::pieces::Casters::from_record(v, b)) {
+            match bytes.ok_or_else(|| "its buffer view is missing".to_string()).and_then(|b| crate::casters::Casters::from_record(v, b)) {
                 Ok(c) => Some(c),
                 Err(why) => {
                     skipped.push(format!("scene extras `q3_casters` left out (the mesh's triangles cast the shadows): {why}"));

@@ -1,5 +1,5 @@
 //! What the CPU's and the WGSL's walks share about the tree (`shaders/bvh.wgsl`): the
-//! node and triangle layouts ([`crate::trace::bvh`] builds them, [`crate::trace::wide`]
+//! node and triangle layouts ([`crate::trace::tree`] builds them, [`crate::trace::wide`]
 //! views them four-wide), the stack bound, and the shadow rays' slack.
 
 /// A node of the flattened tree: an inner node's left child is the next node and
@@ -28,11 +28,11 @@ pub struct Tri {
 /// Stack depth of the traversals (CPU and WGSL); the build never goes deeper.
 pub const MAX_DEPTH: usize = 48;
 
-/// Barycentric slack of the shadow rays' hit test ([`crate::trace::bvh::Bvh::occluded`],
+/// Barycentric slack of the shadow rays' hit test ([`crate::trace::tree::Tree::occluded`],
 /// the WGSL shadow walk): in f32 a ray through the edge two triangles share can miss both
 /// (fixture `arch`: a floor luxel's ray through a diagonal of the column's mesh, which
 /// q3map2's 1% slack blocks). A slack this small closes the crack without q3map2's whole
-/// 1% (see the module docs of [`crate::trace::bvh`]). The first-hit walks (the sun's way
+/// 1% (see the module docs of [`crate::trace::tree`]). The first-hit walks (the sun's way
 /// to the sky, bounces) stay exact: with the slack there, the synthetic sun's search
 /// settled 0.4 degree off (error 0.0207 against 0.0007), a plateau of its pattern search,
 /// not a worse model.

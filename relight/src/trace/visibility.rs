@@ -330,7 +330,7 @@ pub fn sun_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling,
 /// `hints`: pieces that stopped earlier rays, tried first (the row's previous sun, the
 /// previous row's ray to this sun; q3map2's pieces only, see
 /// [`crate::trace::pieces::Shadow::occluded_hinted`]); `crossed`: the sky triangle the
-/// previous row's ray to this sun crossed, tried first ([`Bvh::hits_where_hinted`]).
+/// previous row's ray to this sun crossed, tried first ([`Tree::hits_where_hinted`](crate::trace::tree::Tree::hits_where_hinted)).
 /// Neither changes the answer.
 #[allow(clippy::too_many_arguments)]
 pub fn sky_visible_from(bvh: &Bvh, x: Vec3, n: Vec3, to_sun: Vec3, s: &Sampling, sky: &[bool], open: bool, ahead: crate::rows::SolidAhead, hints: &mut [&mut Occluder], crossed: &mut Occluder) -> bool {
@@ -492,7 +492,7 @@ pub fn visible_from(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> b
 }
 
 /// [`visible_from`] with the occluder of the previous ray towards the same light tried
-/// first ([`Bvh::occluded_after`]; the same answer).
+/// first ([`Tree::occluded_after`](crate::trace::tree::Tree::occluded_after); the same answer).
 pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, last: &mut Occluder) -> bool {
     visible_hinted(bvh, x, n, light, s, &mut [last])
 }

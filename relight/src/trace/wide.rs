@@ -1,4 +1,4 @@
-//! Four-wide views of a [`Bvh`](crate::trace::bvh::Bvh) for the CPU's walks: the binary
+//! Four-wide views of a [`Tree`](crate::trace::tree::Tree) for the CPU's walks: the binary
 //! tree collapsed so that one node holds the boxes of up to four subtrees, laid out lane
 //! by lane, and one visit tests all four against the segment (the compiler turns the lane
 //! loop into vector instructions). The binary tree stays what the WGSL walks use; these
@@ -22,7 +22,7 @@
 //!   bound only falls, and the slab bounds are monotone in it as in the corners). That
 //!   holds where `1 / d` is finite; elsewhere `0 x inf` on a box's face gives a NaN that
 //!   the binary test's glam comparisons keep or drop by position, and
-//!   [`Bvh`](crate::trace::bvh::Bvh) walks the binary tree instead.
+//!   [`Tree`](crate::trace::tree::Tree) walks the binary tree instead.
 //!
 //! Measured on oa_dm1's relit lights (87 lights, 326k shadow rays, one thread, 2-core
 //! Xeon): q3map2's 65,666 pieces 1.32 -> 2.34 M rays/s, the same 239,827 rays stopped.
@@ -32,7 +32,7 @@ use glam::Vec3;
 use crate::trace::layout::{Node, Tri, EDGE_SLACK, MAX_DEPTH};
 
 /// A child slot that is a leaf of the binary tree: the low bits are that leaf's index
-/// in [`crate::trace::bvh::Bvh::nodes`] (so a walk's answer names the same leaf).
+/// in [`crate::trace::tree::Tree::nodes`] (so a walk's answer names the same leaf).
 const LEAF: u32 = 1 << 31;
 /// An empty child slot (its box is empty, so no segment crosses it).
 const EMPTY: u32 = u32::MAX;
@@ -52,7 +52,7 @@ struct Node4 {
 impl Node4 {
     /// Per lane: whether the segment from `o` (`inv`: `1 / d`), `s` in `[0, t_max]`,
     /// crosses the lane's box, an empty slot never. The slab test of `slab_box` in
-    /// `bvh.rs`, four lanes at once; NaN (0 * inf on a slab face) compares false: crossed.
+    /// `tree.rs`, four lanes at once; NaN (0 * inf on a slab face) compares false: crossed.
     #[inline]
     fn crossed(&self, o: [f32; 3], inv: [f32; 3], t_max: f32) -> [bool; 4] {
         let mut near = [0.0f32; 4];
@@ -75,7 +75,7 @@ pub struct Wide {
 }
 
 /// A node's box as the shadow walks test it: grown by twice [`EDGE_SLACK`] of its
-/// largest side (why: [`crate::trace::bvh`]'s module docs and [`EDGE_SLACK`]).
+/// largest side (why: [`crate::trace::tree`]'s module docs and [`EDGE_SLACK`]).
 pub fn shadow_box(node: &Node) -> (Vec3, Vec3) {
     let (lo, hi) = (Vec3::from(node.min), Vec3::from(node.max));
     let pad = Vec3::splat(2.0 * EDGE_SLACK * (hi - lo).max_element().max(0.0));
@@ -90,7 +90,7 @@ fn half_area(n: &Node) -> f32 {
 
 impl Wide {
     /// The view of the binary tree `nodes` (depth-first, left child next, as
-    /// [`crate::trace::bvh`] lays it out). Each node of the view takes its binary node's
+    /// [`crate::trace::tree`] lays it out). Each node of the view takes its binary node's
     /// children and opens the largest inner one among them until it holds four. A tree
     /// over no triangles (`triangles == 0`: one empty placeholder node) has an empty view.
     pub fn new(nodes: &[Node], triangles: usize) -> Wide {
@@ -237,11 +237,11 @@ impl Wide {
 mod tests {
     use super::*;
     use crate::model::bounce::hash01;
-    use crate::trace::bvh::{intersect, slab_box, Bvh};
+    use crate::trace::tree::{intersect, slab_box, Tree};
 
     /// The binary walk, written as the reference: recursion over the binary tree, each
     /// box tested as the shadow walks grow it.
-    fn binary(bvh: &Bvh, node: u32, o: Vec3, d: Vec3, t_max: f32, hit: &dyn Fn(&Tri) -> bool) -> bool {
+    fn binary(bvh: &Tree, node: u32, o: Vec3, d: Vec3, t_max: f32, hit: &dyn Fn(&Tri) -> bool) -> bool {
         let n = &bvh.nodes[node as usize];
         let (lo, hi) = shadow_box(n);
         if !slab_box(lo, hi, o, d.recip(), t_max) {
@@ -263,9 +263,9 @@ mod tests {
         let (mut mesh, _) = crate::testutil::room(4);
         crate::testutil::scatter_quads(&mut mesh, 300);
         let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
-        let bvh = Bvh::build(&mesh);
+        let bvh = Tree::build(&mesh);
         assert!(bvh.nodes.len() > 100, "a tree of some depth");
-        let grown = Bvh::build_grown(&mesh, 0.03);
+        let grown = Tree::build_grown(&mesh, 0.03);
         let (mut blocked, mut open) = (0, 0);
         for k in 0..20_000u32 {
             let o = Vec3::new(at(k, 11), at(k, 12), at(k, 13));
@@ -297,7 +297,7 @@ mod tests {
     /// The binary first-hit walk, written as the reference: the stack walk
     /// `first_hit_where` did before the exact view, left child first, each node's exact
     /// box tested at the distance found so far.
-    fn binary_first(bvh: &Bvh, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(f32, usize)> {
+    fn binary_first(bvh: &Tree, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<(f32, usize)> {
         let inv = d.recip();
         let (mut best, mut limit) = (None, t_max);
         let mut stack = vec![0u32];
@@ -341,7 +341,7 @@ mod tests {
             }
         }
         let at = |k: u32, s: u32| -0.5 + 5.0 * hash01(k, s);
-        let bvh = Bvh::build(&mesh);
+        let bvh = Tree::build(&mesh);
         let (mut hits, mut misses) = (0, 0);
         for k in 0..20_000u32 {
             let o = Vec3::new(at(k, 21), at(k, 22), at(k, 23));
@@ -369,10 +369,10 @@ mod tests {
         mesh.triangles.clear();
         mesh.tri_material.clear();
         mesh.tri_source.clear();
-        let empty = Bvh::build(&mesh);
+        let empty = Tree::build(&mesh);
         assert!(empty.find_leaf_tri(Vec3::ZERO, Vec3::ONE, 1.0, |_, _| true).is_none());
         crate::testutil::push_quad(&mut mesh, [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]], Vec3::NEG_Z);
-        let one = Bvh::build(&mesh);
+        let one = Tree::build(&mesh);
         assert_eq!(one.nodes.len(), 1);
         assert_eq!(one.find_leaf_tri(Vec3::new(0.5, 0.3, 0.0), Vec3::Z * 2.0, 1.0, |_, _| true).map(|h| h.0), Some(0));
         assert!(one.find_leaf_tri(Vec3::new(1.5, 0.3, 0.0), Vec3::Z * 2.0, 1.0, |_, _| true).is_none());
