@@ -10,8 +10,7 @@
 
 use crate::scene::{Mesh, Scene};
 use crate::trace::pieces::Shadow;
-pub use crate::trace::tree::{closest_on_triangle, intersect, intersect_uv, Occluder, Tree, EDGE_SLACK, MAX_DEPTH, START_BACK_M};
-pub use crate::trace::layout::{Node, Tri};
+pub use crate::trace::tree::{Occluder, Tree, Tri, EDGE_SLACK};
 
 #[derive(Debug, Clone)]
 pub struct Bvh {
