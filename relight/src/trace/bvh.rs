@@ -35,11 +35,6 @@ impl Bvh {
         Bvh { tree: Tree::build(mesh), shadow: None }
     }
 
-    /// Over the non-degenerate triangles `t` with `keep(t)`; no pieces.
-    pub fn build_where(mesh: &Mesh, keep: impl Fn(usize) -> bool) -> Bvh {
-        Bvh { tree: Tree::build_where(mesh, keep), shadow: None }
-    }
-
     /// Over the triangles whose material blocks light
     /// ([`crate::scene::Material::casts_shadow`]): the occluders of every shadow ray.
     /// With q3map2's casters in the scene, its pieces of them stop the shadow rays
