@@ -10,6 +10,9 @@ use q3gltf_relight::rows::look::Look;
 use q3gltf_relight::pipeline::{self, BackendChoice, Estimator, FitMode, GammaChoice, Init, Optional, Options, Progress, Subdivide, TargetSpace};
 use q3gltf_relight::report;
 
+/// The most candidates `--init dense:N` takes (each is a light of the first fit).
+const MAX_DENSE: usize = 8192;
+
 #[derive(Args)]
 pub struct RelightArgs {
     /// Input scene (.gltf or .glb): the output of `q3gltf convert`, or that scene after a
@@ -41,9 +44,11 @@ pub struct RelightArgs {
     #[arg(long = "max-vertices", default_value_t = 1_500_000)]
     pub max_vertices: usize,
     /// Starting lights: `auto` (greedy placement in free space, as few as needed),
-    /// `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a light with
-    /// extras `"locked": true` is kept fixed).
-    #[arg(long, default_value = "auto", value_name = "auto|grid:N|input")]
+    /// `dense[:N]` (up to N lights, default 1000, over the rows the map's emitters leave
+    /// unexplained, fitted at once and pruned: for maps lit by many small light
+    /// entities), `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a
+    /// light with extras `"locked": true` is kept fixed).
+    #[arg(long, default_value = "auto", value_name = "auto|dense[:N]|grid:N|input")]
     pub init: String,
     /// Optimisation scheme: default, fast, thesis1..thesis5 (Table 5.1 of the thesis), or
     /// one phase of `adam:STEP` or `lbfgs:STEP` (the thesis's basic schemes, section 5.1).
@@ -232,9 +237,11 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
     let init = match a.init.as_str() {
         "auto" => Init::Auto,
         "input" => Init::Input,
-        s => match s.strip_prefix("grid:").and_then(|n| n.parse::<usize>().ok()) {
-            Some(n) if (1..=64).contains(&n) => Init::Grid(n),
-            _ => return Err(format!("--init {s:?}: expected auto, input or grid:N with 1 <= N <= 64")),
+        "dense" => Init::Dense(q3gltf_relight::init::DENSE_DEFAULT),
+        s => match (s.strip_prefix("grid:").and_then(|n| n.parse::<usize>().ok()), s.strip_prefix("dense:").and_then(|n| n.parse::<usize>().ok())) {
+            (Some(n), _) if (1..=64).contains(&n) => Init::Grid(n),
+            (_, Some(n)) if (1..=MAX_DENSE).contains(&n) => Init::Dense(n),
+            _ => return Err(format!("--init {s:?}: expected auto, input, dense[:N] with 1 <= N <= {MAX_DENSE}, or grid:N with 1 <= N <= 64")),
         },
     };
     let time_limit = match a.time_limit {
@@ -379,7 +386,10 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
         ),
     }
     let spots = rep.lights.iter().filter(|l| l.kind == "spot").count();
-    println!("  lights    {} ({} spots; pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged);
+    match rep.dense_candidates {
+        Some(c) => println!("  lights    {} ({} spots; from {c} dense candidates: pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged),
+        None => println!("  lights    {} ({} spots; pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged),
+    }
     if let Some(s) = &rep.sun {
         println!("  sun       elevation {:.1} deg, azimuth {:.1} deg, {:.0} lux", s.elevation_deg, s.azimuth_deg, s.illuminance_lux);
     }

@@ -479,40 +479,76 @@ const RECOVERY: [(&str, f64, usize); 5] = [
     ("oacmpctf1", 0.10, 0),
 ];
 
+/// A relight of a truth-set map converted with its `.map` source, from no source light
+/// (`relight` with `args` after the input): its report, its point lights, and how many of
+/// the source's 10 strongest point lights have one of them within 64 units.
+fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, usize) {
+    let pk3 = common::oacmp().join("z_oacmp-volume1-v3.pk3");
+    let source = dir.join(format!("{map}.map"));
+    if !source.exists() {
+        common::extract(&pk3, &format!("sources/maps/{map}.map"), &source);
+    }
+    let gltf = dir.join(format!("{map}.glb"));
+    if !gltf.exists() {
+        convert_with_source(dir, map, map, &source, &[common::baseoa(), common::oacmp()]);
+    }
+    let rep = dir.join(format!("{map}.{tag}.json"));
+    let out = dir.join(format!("{map}.{tag}.glb"));
+    let mut all = vec!["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"];
+    all.extend_from_slice(args);
+    run(&all);
+    let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    let mut sources = point_lights(&glb_json(&gltf));
+    assert!(sources.len() >= 10, "{map}: {} source point lights", sources.len());
+    sources.sort_by(|a, b| b.0.total_cmp(&a.0));
+    // The fitted lights, as the report gives them (the written scene is checked elsewhere).
+    let found: Vec<[f64; 3]> = r["lights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|l| l["kind"] == "point")
+        .map(|l| [0, 1, 2].map(|k| l["position_m"][k].as_f64().unwrap()))
+        .collect();
+    let reach = 64.0 * 0.0254;
+    let near = |p: [f64; 3]| found.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt() <= reach);
+    let hits = sources[..10].iter().filter(|(_, p)| near(*p)).count();
+    (r, found.len(), hits)
+}
+
 /// Recovery: the default relight (`--init auto`, no source) on the truth-set maps.
 #[test]
 fn truth_set_recovery_by_the_default_relight() {
     let dir = tmp("recovery");
-    let pk3 = common::oacmp().join("z_oacmp-volume1-v3.pk3");
     let mut failures = Vec::new();
     for (map, bound, min_found) in RECOVERY {
-        let source = dir.join(format!("{map}.map"));
-        common::extract(&pk3, &format!("sources/maps/{map}.map"), &source);
-        let gltf = convert_with_source(&dir, map, map, &source, &[common::baseoa(), common::oacmp()]);
-        let rep = dir.join(format!("{map}.auto.json"));
-        let out = dir.join(format!("{map}.auto.glb"));
-        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
-        let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
-        let mut sources = point_lights(&glb_json(&gltf));
-        assert!(sources.len() >= 10, "{map}: {} source point lights", sources.len());
-        sources.sort_by(|a, b| b.0.total_cmp(&a.0));
-        // The fitted lights, as the report gives them (the written scene is checked elsewhere).
-        let found: Vec<[f64; 3]> = r["lights"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|l| l["kind"] == "point")
-            .map(|l| [0, 1, 2].map(|k| l["position_m"][k].as_f64().unwrap()))
-            .collect();
-        let reach = 64.0 * 0.0254;
-        let near = |p: [f64; 3]| found.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt() <= reach);
-        let hits = sources[..10].iter().filter(|(_, p)| near(*p)).count();
+        let (r, lights, hits) = recovery(&dir, map, "auto", &[]);
         let err = r["rel_error_final"].as_f64().unwrap();
         common::assert_terms_within_allowance(map, &r);
-        eprintln!("{map:10} {err:.4} (bound {bound}), {} lights, {hits}/10 of the strongest sources found (at least {min_found})", found.len());
+        eprintln!("{map:10} {err:.4} (bound {bound}), {lights} lights, {hits}/10 of the strongest sources found (at least {min_found})");
         if !(err <= bound) || hits < min_found {
             failures.push(format!("{map}: error {err:.4} (bound {bound}), {hits}/10 found (at least {min_found})"));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Recovery from the dense start (`--init dense`) on oacmpdm2, the truth-set map lit most
+/// by point lights (83% of its direct light from its 1237 light entities, in the globals
+/// fit of its own sources): measured 2026-12-01 (2-core Xeon), 0.0514 with 198 lights and
+/// 4 of the 10 strongest found, against the default's 0.0702 (87 lights, 0/10) and the
+/// source refit's 0.0523 (210). The bound is the fidelity issue's goal, 1.15 x that
+/// refit; the ten strongest are ten of 23 tied at `light 90`, so which of them a fit
+/// comes near is close to a coin's toss (the sources within 64 units of a found light
+/// hold 0.61-0.73 of the source intensity over the variants measured), hence the margin on
+/// the count.
+#[test]
+fn truth_set_recovery_by_the_dense_start() {
+    let dir = tmp("recovery-dense");
+    let (r, lights, hits) = recovery(&dir, "oacmpdm2", "dense", &["--init", "dense"]);
+    let err = r["rel_error_final"].as_f64().unwrap();
+    common::assert_terms_within_allowance("oacmpdm2", &r);
+    eprintln!("oacmpdm2 dense {err:.4}, {lights} lights, {hits}/10 of the strongest sources found");
+    assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > 500), "{}", r["dense_candidates"]);
+    assert!(err <= 1.15 * 0.0523, "oacmpdm2 from the dense start: error {err:.4}, over 1.15 x the source refit's 0.0523");
+    assert!(hits >= 3, "oacmpdm2 from the dense start: {hits}/10 of the strongest sources found");
 }

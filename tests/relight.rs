@@ -538,6 +538,36 @@ fn synthetic_ground_truth_is_recovered() {
     assert!(r["gamma"]["how"].as_str().unwrap().starts_with("estimated: 1"), "{}", r["gamma"]);
 }
 
+/// Synthetic ground truth relit from the dense start (`--init dense`): a thousand
+/// candidates, fitted at once, pruned and merged down to the truth's lights, each found
+/// where it is; the CLI refuses a count of 0 and `--fit globals` with it.
+#[test]
+fn synthetic_ground_truth_from_the_dense_start() {
+    let dir = tmp("synthetic-dense");
+    let (gltf, diag) = synthetic_scene(&dir, false, false);
+    let out = dir.join("dense.relit.gltf");
+    let rep = dir.join("r.json");
+    run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", "dense", "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+    let r = report(&rep);
+    assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > SYNTHETIC_TRUTH.len() as u64), "{}", r["dense_candidates"]);
+    assert_eq!(r["init"], "dense:1000");
+    let found = lights_of(&r);
+    let err = r["rel_error_final"].as_f64().unwrap();
+    eprintln!("dense start: {} lights, error {err:.4}", found.len());
+    assert!(err < 0.01, "relative error {err}");
+    assert!(found.len() <= 2 * SYNTHETIC_TRUTH.len(), "{} lights for the truth's {}: {found:?}", found.len(), SYNTHETIC_TRUTH.len());
+    for (p, _) in synthetic_truth_cd() {
+        assert!(found.iter().any(|f| dist(f.0, p) < 0.01 * diag), "no light found near {p:?}: {found:?}");
+    }
+    for bad in [&["--init", "dense:0"][..], &["--init", "dense", "--fit", "globals"]] {
+        let mut args = vec!["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "-q"];
+        args.extend_from_slice(bad);
+        let st = Command::new(bin()).args(&args).output().unwrap();
+        let msg = String::from_utf8_lossy(&st.stderr);
+        assert!(!st.status.success() && msg.contains("dense") && !msg.contains("panicked"), "{bad:?}: {msg}");
+    }
+}
+
 /// The synthetic scene `gltf` with [`SYNTHETIC_TRUTH`]'s lights in it as point lights
 /// (`start.gltf` in `dir`): the start of an `--init input` run.
 fn with_truth_lights(dir: &Path, gltf: &Path) -> PathBuf {

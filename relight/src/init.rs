@@ -97,6 +97,67 @@ pub fn grid(n: usize, lo: Vec3, hi: Vec3) -> Vec<Light> {
     v
 }
 
+/// Heights of the dense start's candidates over a row along its normal, Quake units (a
+/// small fixture's distance from its wall, and twice that), each at most half the free
+/// distance to the opposite surface.
+pub const DENSE_HEIGHTS_UNITS: [f32; 2] = [24.0, 48.0];
+
+/// The dense start keeps one candidate per cell of this size, Quake units.
+pub const DENSE_SPACING_UNITS: f32 = 64.0;
+
+/// Candidates of the dense start when `--init dense` names no count.
+pub const DENSE_DEFAULT: usize = 1000;
+
+/// `dense:N`: an over-complete start for maps lit by many small sources. Up to `n` point
+/// lights in free space over the rows that `x` (the model without lights) leaves most
+/// unexplained (area times the shortfall, summed over the channels), at
+/// [`DENSE_HEIGHTS_UNITS`] along each row's normal, one per cell of
+/// [`DENSE_SPACING_UNITS`]. The caller fits them all at once (a non-negative linear fit
+/// zeroes most), refits and prunes: where the greedy placement adds one light for the
+/// largest shortfall at a time and stops when the next gains too little, this start
+/// lets hundreds of small lights share the residual from the first solve.
+///
+/// `units_m` is meters per Quake unit, `min_dist` the lights' least distance to a surface
+/// (m), `diag` the light box's diagonal (m). Rows of no shortfall give no candidate; the
+/// result is empty where `x` explains every row.
+#[allow(clippy::too_many_arguments)]
+pub fn dense(mesh: &Mesh, rows: &Rows, bvh: &Bvh, x: &[[f64; 3]], n: usize, units_m: f32, min_dist: f32, diag: f32) -> Vec<Light> {
+    let mut order: Vec<(f64, usize)> = (0..rows.len().min(x.len()))
+        .map(|i| ((0..3).map(|c| shortfall(rows, i, c, x[i][c]).0.max(0.0)).sum::<f64>() * rows.area[i] as f64, i))
+        .filter(|(r, _)| *r > 0.0 && r.is_finite())
+        .collect();
+    order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let cell = (DENSE_SPACING_UNITS * units_m).max(1e-4);
+    let mut taken: std::collections::HashSet<[i64; 3]> = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    let far = 0.3 * diag.max(1e-3);
+    for &(_, i) in &order {
+        if out.len() >= n {
+            break;
+        }
+        let (x0, nrm) = (rows.pos[i], rows.normal[i]);
+        if !x0.is_finite() || !nrm.is_finite() || nrm == Vec3::ZERO {
+            continue;
+        }
+        // The free distance along the normal, to the opposite surface (or `far`).
+        let free = bvh.first_hit(x0 + nrm * rows.sampling.ray_offset, nrm * far, 1.0).map_or(far, |(t, _)| t * far);
+        for h in DENSE_HEIGHTS_UNITS {
+            let step = (h * units_m).min(0.5 * free).max(2.0 * min_dist);
+            let Some(p) = clear_of_surfaces(mesh, bvh, x0 + nrm * step, min_dist, step) else { continue };
+            let key = [p.x, p.y, p.z].map(|v| (v / cell).floor() as i64);
+            if taken.contains(&key) || !free_space(mesh, bvh, p, 2.0 * diag) {
+                continue;
+            }
+            taken.insert(key);
+            out.push(Light::point(p, [1.0; 3]));
+            if out.len() >= n {
+                break;
+            }
+        }
+    }
+    out
+}
+
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct AutoStats {
     pub sample_vertices: usize,
@@ -654,8 +715,48 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
 mod tests {
     use glam::Vec3;
 
-    use super::{batch, Scored, BATCH_LIGHTS};
+    use super::{batch, dense, free_space, Scored, BATCH_LIGHTS, DENSE_SPACING_UNITS};
     use crate::testutil::room;
+    use crate::trace::bvh::Bvh;
+
+    /// The dense start: candidates in free space, off the walls, one per cell, no more
+    /// than asked, over the rows left unexplained (the brightest first); none where the
+    /// model explains every row.
+    #[test]
+    fn the_dense_start_fills_the_room_where_light_is_unexplained() {
+        let (mesh, mut rows) = room(12);
+        let bvh = Bvh::build(&mesh);
+        let units_m = 0.0254;
+        let (min_dist, diag) = (0.05, 5.7);
+        // The data: bright only on the floor's rows under x < 1 m (every other row dark).
+        for i in 0..rows.len() {
+            let lit = rows.normal[i].y > 0.9 && rows.pos[i].x < 1.0;
+            for c in 0..3 {
+                (rows.lo[i][c], rows.hi[i][c], rows.lower[i][c]) = if lit { (1.0, 1.02, 0.0) } else { (0.0, 0.0, 0.0) };
+                rows.weight[i][c] = 1.0;
+            }
+        }
+        let none = vec![[0.0f64; 3]; rows.len()];
+        let got = dense(&mesh, &rows, &bvh, &none, 1000, units_m, min_dist, diag);
+        assert!(!got.is_empty());
+        let cell = DENSE_SPACING_UNITS * units_m;
+        for (k, l) in got.iter().enumerate() {
+            assert!(free_space(&mesh, &bvh, l.pos, 2.0 * diag), "candidate {k} at {:?} is not in free space", l.pos);
+            let (d, _) = bvh.nearest(l.pos).unwrap();
+            assert!(d >= min_dist, "candidate {k} is {d} m from a wall");
+            assert!(l.pos.x < 1.0 + 0.5 && l.pos.y < 1.3, "candidate {k} at {:?} is over no lit row", l.pos);
+            for m in &got[..k] {
+                assert_ne!((l.pos / cell).floor(), (m.pos / cell).floor(), "two candidates in one cell");
+            }
+        }
+        // No more than asked, the first one the same.
+        let two = dense(&mesh, &rows, &bvh, &none, 2, units_m, min_dist, diag);
+        assert_eq!(two.len(), 2);
+        assert_eq!(two[0].pos, got[0].pos);
+        // A model that explains every row leaves no candidate.
+        let bright = vec![[2.0f64; 3]; rows.len()];
+        assert!(dense(&mesh, &rows, &bvh, &bright, 1000, units_m, min_dist, diag).is_empty());
+    }
 
     /// A batch takes the best candidate, then those over other rows that promise at least
     /// half as much and whose light falls on rows none taken reaches; no more than asked.

@@ -136,6 +136,12 @@ pub struct Fitter<'a> {
     columns: linear::ColumnCache,
 }
 
+/// The least distance lights keep from surfaces in a light box from `lo` to `hi`, m: a
+/// 500th of its diagonal, at least 5 cm.
+pub fn min_dist(lo: Vec3, hi: Vec3) -> f32 {
+    (0.002 * (hi - lo).length().max(1e-3)).max(0.05)
+}
+
 impl<'a> Fitter<'a> {
     pub fn new(rows: &'a Rows, bases: &'a Bases, bvh: &'a Bvh, backend: &'a mut dyn Backend, lo: Vec3, hi: Vec3) -> Fitter<'a> {
         let diag = (hi - lo).length().max(1e-3);
@@ -150,7 +156,7 @@ impl<'a> Fitter<'a> {
             codec: Codec { center: (lo + hi) * 0.5, unit: 0.05 * diag },
             lo,
             hi,
-            min_dist: (0.002 * diag).max(0.05),
+            min_dist: min_dist(lo, hi),
             retrace_tol: (0.002 * diag).max(0.01),
             sun_retrace_tol: 1e-3,
             history: Vec::new(),
