@@ -44,9 +44,8 @@ pub struct RelightArgs {
     #[arg(long = "max-vertices", default_value_t = 1_500_000)]
     pub max_vertices: usize,
     /// Starting lights: `auto` (greedy placement in free space, as few as needed),
-    /// `dense[:N]` (up to N lights, default 1000, over the rows the map's emitters leave
-    /// unexplained, fitted at once and pruned: for maps lit by many small light
-    /// entities), `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a
+    /// `dense[:N]` (up to N lights, default 1000, in free space over the brightest rows,
+    /// fitted at once and pruned: for maps lit by many small light entities), `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a
     /// light with extras `"locked": true` is kept fixed).
     #[arg(long, default_value = "auto", value_name = "auto|dense[:N]|grid:N|input")]
     pub init: String,

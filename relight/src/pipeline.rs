@@ -66,8 +66,8 @@ pub enum Init {
     Grid(usize),
     /// The file's lights.
     Input,
-    /// Up to N lights over the rows the map's emitters leave unexplained, fitted at once
-    /// and pruned ([`init::dense`]): for maps lit by many small sources.
+    /// Up to N lights over the brightest rows, fitted at once and pruned
+    /// ([`init::dense`]): for maps lit by many small sources.
     Dense(usize),
 }
 
@@ -859,14 +859,9 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             (g, vec![false; k], vec![None; k])
         }
         Init::Dense(n) => {
-            // Locked input lights stay. The candidates follow the data, not what the
-            // map's emitters leave of it: fitted alone, the emitters stretch over light
-            // the lights will explain (oacmpdm2 0.0553 and oacmpdm3 0.1597 over their
-            // residual, 0.0508 and 0.1486 over the data); the first exact fit shares the
-            // data between the candidates and the emitters.
+            // Locked input lights stay; the candidates join them.
             let keep: Vec<&(Light, bool, usize)> = input_lights.iter().filter(|x| x.1).collect();
-            let none = vec![[0.0f64; 3]; rows.len()];
-            let cands = init::dense(&scene.mesh, rows, &bvh, &none, *n, scene.units_m, crate::fit::min_dist(lo, hi), (hi - lo).length());
+            let cands = init::dense(&scene.mesh, rows, &bvh, *n, scene.units_m, crate::fit::min_dist(lo, hi), (hi - lo).length());
             dense_candidates = Some(cands.len());
             let mut lights: Vec<Light> = keep.iter().map(|x| x.0).collect();
             let mut locked = vec![true; lights.len()];
