@@ -117,7 +117,8 @@ pub const DENSE_DEFAULT: usize = 1000;
 /// little, this start lets hundreds of small lights share the data from the first solve.
 /// The candidates follow the data, not what the map's emitters leave of it: fitted alone,
 /// the emitters stretch over light the lights will explain (oacmpdm2 0.0553 and oacmpdm3
-/// 0.1597 over that residual, 0.0508 and 0.1486 over the data; docs/fidelity.md); the
+/// 0.1597 over that residual, 0.0508 and 0.1486 over the data, before the second
+/// pruning; docs/fidelity.md); the
 /// first exact fit shares the data between the candidates and the emitters.
 ///
 /// `units_m` is meters per Quake unit, `min_dist` the lights' least distance to a surface
