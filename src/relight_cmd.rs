@@ -43,11 +43,14 @@ pub struct RelightArgs {
     /// Vertex budget of the subdivision.
     #[arg(long = "max-vertices", default_value_t = 1_500_000)]
     pub max_vertices: usize,
-    /// Starting lights: `auto` (greedy placement in free space, as few as needed),
-    /// `dense[:N]` (up to N lights, default 1000, in free space over the brightest rows,
-    /// fitted at once and pruned: for maps lit by many small light entities), `grid:N` (the thesis's N x N grid), `input` (the file's point lights; a
-    /// light with extras `"locked": true` is kept fixed).
-    #[arg(long, default_value = "auto", value_name = "auto|dense[:N]|grid:N|input")]
+    /// Starting lights: `auto` (the greedy placement in free space, then a thousand dense
+    /// candidates beside its lights, all fitted at once and pruned to as few as the data
+    /// needs), `greedy` (the placement alone: fewer lights, faster, higher error on maps
+    /// lit by many small light entities), `dense[:N]` (only the N candidates, default
+    /// 1000, in free space over the brightest rows), `grid:N` (the thesis's N x N grid),
+    /// `input` (the file's point lights; a light with extras `"locked": true` is kept
+    /// fixed).
+    #[arg(long, default_value = "auto", value_name = "auto|greedy|dense[:N]|grid:N|input")]
     pub init: String,
     /// Optimisation scheme: default, fast, thesis1..thesis5 (Table 5.1 of the thesis), or
     /// one phase of `adam:STEP` or `lbfgs:STEP` (the thesis's basic schemes, section 5.1).
@@ -235,12 +238,13 @@ fn parse(a: &RelightArgs) -> Result<Options, String> {
     };
     let init = match a.init.as_str() {
         "auto" => Init::Auto,
+        "greedy" => Init::Greedy,
         "input" => Init::Input,
         "dense" => Init::Dense(q3gltf_relight::init::DENSE_DEFAULT),
         s => match (s.strip_prefix("grid:").and_then(|n| n.parse::<usize>().ok()), s.strip_prefix("dense:").and_then(|n| n.parse::<usize>().ok())) {
             (Some(n), _) if (1..=64).contains(&n) => Init::Grid(n),
             (_, Some(n)) if (1..=MAX_DENSE).contains(&n) => Init::Dense(n),
-            _ => return Err(format!("--init {s:?}: expected auto, input, dense[:N] with 1 <= N <= {MAX_DENSE}, or grid:N with 1 <= N <= 64")),
+            _ => return Err(format!("--init {s:?}: expected auto, greedy, input, dense[:N] with 1 <= N <= {MAX_DENSE}, or grid:N with 1 <= N <= 64")),
         },
     };
     let time_limit = match a.time_limit {
@@ -386,7 +390,15 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     }
     let spots = rep.lights.iter().filter(|l| l.kind == "spot").count();
     match rep.dense_candidates {
-        Some(c) => println!("  lights    {} ({} spots; from {c} dense candidates: pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged),
+        Some(c) => println!(
+            "  lights    {} ({} spots; {}{c} dense candidates, {} left dark by the first fit: pruned {}, merged {})",
+            rep.lights.len(),
+            spots,
+            if rep.init == "auto" { "placed, then " } else { "from " },
+            rep.dense_dark.unwrap_or(0),
+            rep.pruned,
+            rep.merged
+        ),
         None => println!("  lights    {} ({} spots; pruned {}, merged {})", rep.lights.len(), spots, rep.pruned, rep.merged),
     }
     if let Some(s) = &rep.sun {

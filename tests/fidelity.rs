@@ -434,8 +434,19 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
         .collect()
 }
 
-/// (map, largest error of the default relight, fewest of the source's 10 strongest point
-/// lights with a found point light within 64 units). Measured on 2026-11-24 (2 cores):
+/// (map, the error of the same map started from its source lights and fully refitted
+/// (`--init input`), fewest of the source's 10 strongest point lights with a found point
+/// light within 64 units). The default relight must end within the fidelity issue's
+/// 1.15 x that refit. The refits measured on 2026-12-02 (2-core Xeon; the linear fit's
+/// rounds through the chain), as the README's recovery table; the default then (the
+/// placement and a thousand dense candidates beside it): 0.1238 (179 lights, 6/10),
+/// 0.0530 (180, 5/10), 0.1386 (241, 9/10), 0.0869 (68, 10/10), 0.0827 (27, 0/10). The
+/// counts' margins: the ten strongest are ten of a tie on oacmpdm1-4 (23 of oacmpdm2's
+/// sources share `light 90`), so which of them a fit comes near varies between runs
+/// (oacmpdm2 7/10 with 300 candidates, 5/10 with 1000); oacmpctf1 is skipped (its light is
+/// its sky's: 0.89 of the direct light, 0.10 its point lights').
+///
+/// Before, the largest error of the default relight. Measured on 2026-11-24 (2 cores):
 /// see the README's recovery table; the fidelity issue's goals (within 1.15 x the source
 /// refit, 7 of 10 found) are met on oacmpdm4 only. On 2026-11-25, with the data's clamp
 /// and the linear fit's active set of censored bounds: 0.2233 (3 lights), 0.1881 (33),
@@ -472,12 +483,15 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// candidates, converted without the source: 0.0700 with 90, 0.0730 with 87, 0.0630 with
 /// 102), so its bound leaves room for a change of path.
 const RECOVERY: [(&str, f64, usize); 5] = [
-    ("oacmpdm1", 0.19, 5),
-    ("oacmpdm2", 0.09, 0),
-    ("oacmpdm3", 0.22, 0),
-    ("oacmpdm4", 0.12, 8),
-    ("oacmpctf1", 0.10, 0),
+    ("oacmpdm1", 0.1544, 5),
+    ("oacmpdm2", 0.0526, 4),
+    ("oacmpdm3", 0.1289, 7),
+    ("oacmpdm4", 0.0856, 8),
+    ("oacmpctf1", 0.0820, 0),
 ];
+
+/// The fidelity issue's recovery goal: the default within this factor of the source refit.
+const RECOVERY_RATIO: f64 = 1.15;
 
 /// A relight of a truth-set map converted with its `.map` source, from no source light
 /// (`relight` with `args` after the input): its report, its point lights, and how many of
@@ -520,13 +534,15 @@ fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, u
 fn truth_set_recovery_by_the_default_relight() {
     let dir = tmp("recovery");
     let mut failures = Vec::new();
-    for (map, bound, min_found) in RECOVERY {
+    for (map, refit, min_found) in RECOVERY {
+        let bound = RECOVERY_RATIO * refit;
         let (r, lights, hits) = recovery(&dir, map, "auto", &[]);
+        assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > 100), "{map}: the default placed no dense candidates: {}", r["dense_candidates"]);
         let err = r["rel_error_final"].as_f64().unwrap();
         common::assert_terms_within_allowance(map, &r);
-        eprintln!("{map:10} {err:.4} (bound {bound}), {lights} lights, {hits}/10 of the strongest sources found (at least {min_found})");
+        eprintln!("{map:10} {err:.4} ({:.3} x the source refit's {refit}), {lights} lights, {hits}/10 of the strongest sources found (at least {min_found})", err / refit);
         if !(err <= bound) || hits < min_found {
-            failures.push(format!("{map}: error {err:.4} (bound {bound}), {hits}/10 found (at least {min_found})"));
+            failures.push(format!("{map}: error {err:.4} (bound {bound:.4}: {RECOVERY_RATIO} x {refit}), {hits}/10 found (at least {min_found})"));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
@@ -536,7 +552,9 @@ fn truth_set_recovery_by_the_default_relight() {
 /// by point lights (83% of its direct light from its 1237 light entities, in the globals
 /// fit of its own sources): measured 2026-12-01 (2-core Xeon), 0.0514 with 198 lights and
 /// 4 of the 10 strongest found, against the default's 0.0702 (87 lights, 0/10) and the
-/// source refit's 0.0523 (210). The bound is the fidelity issue's goal, 1.15 x that
+/// source refit's 0.0523 (210); on 2026-12-02, with the linear fit's rounds through the
+/// chain and the candidates it leaves dark dropped, 0.0513 (202, 5/10), the refit 0.0526.
+/// The bound is the fidelity issue's goal, 1.15 x that
 /// refit; the ten strongest are ten of 23 tied at `light 90`, so which of them a fit
 /// comes near is close to a coin's toss (the sources within 64 units of a found light
 /// hold 0.61-0.73 of the source intensity over the variants measured), hence the margin on
@@ -549,6 +567,6 @@ fn truth_set_recovery_by_the_dense_start() {
     common::assert_terms_within_allowance("oacmpdm2", &r);
     eprintln!("oacmpdm2 dense {err:.4}, {lights} lights, {hits}/10 of the strongest sources found");
     assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > 500), "{}", r["dense_candidates"]);
-    assert!(err <= 1.15 * 0.0523, "oacmpdm2 from the dense start: error {err:.4}, over 1.15 x the source refit's 0.0523");
+    assert!(err <= RECOVERY_RATIO * 0.0526, "oacmpdm2 from the dense start: error {err:.4}, over 1.15 x the source refit's 0.0526");
     assert!(hits >= 3, "oacmpdm2 from the dense start: {hits}/10 of the strongest sources found");
 }

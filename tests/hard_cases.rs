@@ -337,7 +337,12 @@ fn degenerate_tiny_huge_and_duplicate_geometry() {
 /// (0.584 -> 0.602 in a survey of all maps on 2026-11-22). At 5dc1c61 the phases went
 /// 0.407 -> 0.361 -> 0.324 and the final exact refit of the linear coefficients, which
 /// leaves censored channels out, undid the polish (0.360). Now every phase and the run end
-/// no worse than they began (measured on 2026-11-23: 0.413 -> 0.354 -> 0.320).
+/// no worse than they began (measured on 2026-11-23: 0.413 -> 0.354 -> 0.320). The phases
+/// re-trace a light only once it moved `retrace_tol`, so the last phase's error is of
+/// slightly stale shadows: the final refit starts from every light traced where it stands
+/// (the report's `rel_error_retraced`) and must not end above that; the retrace itself
+/// moves the error by little (2026-12-02, with the dense candidates' 174 lights: 0.2218 in
+/// the last polish, 0.2238 traced exactly, 0.2233 after the refit).
 #[test]
 fn suspended_ends_no_worse_than_it_starts() {
     let dir = tmp("suspended");
@@ -354,5 +359,7 @@ fn suspended_ends_no_worse_than_it_starts() {
         assert!(a <= b * 1.001, "{}: {b} -> {a}", p["name"]);
         last = a;
     }
-    assert!(e1 <= last * 1.001, "the final refit: {last} -> {e1}");
+    let retraced = r["rel_error_retraced"].as_f64().expect("the report gives the retraced error");
+    assert!(retraced <= last * 1.02, "the exact retrace: {last} -> {retraced}");
+    assert!(e1 <= retraced * 1.001, "the final refit: {retraced} -> {e1}");
 }

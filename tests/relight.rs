@@ -538,6 +538,35 @@ fn synthetic_ground_truth_is_recovered() {
     assert!(r["gamma"]["how"].as_str().unwrap().starts_with("estimated: 1"), "{}", r["gamma"]);
 }
 
+/// `--init auto` is the greedy placement and the dense candidates beside it; `--init
+/// greedy` the placement alone. On the sample both end with its three light entities.
+#[test]
+fn the_default_start_tops_the_placement_up_with_dense_candidates() {
+    let dir = tmp("greedy");
+    let gltf = convert_sample(&dir);
+    let out = dir.join("sample.relit.gltf");
+    let rep = dir.join("report.json");
+    for init in ["auto", "greedy"] {
+        run(&["relight", gltf.to_str().unwrap(), "-o", out.to_str().unwrap(), "--init", init, "--backend", "cpu", "--report", rep.to_str().unwrap(), "-q"]);
+        let r = report(&rep);
+        assert_eq!(r["init"], init);
+        assert!(r["auto"]["added"].as_u64().is_some_and(|a| a >= 3), "{init}: the placement placed {}", r["auto"]["added"]);
+        match init {
+            "auto" => {
+                let c = r["dense_candidates"].as_u64().expect("auto reports its dense candidates");
+                let dark = r["dense_dark"].as_u64().expect("auto reports the candidates left dark");
+                assert!(c > 50 && dark > 0 && dark <= c + 3, "{c} candidates, {dark} dark");
+            }
+            _ => assert!(r["dense_candidates"].is_null() && r["dense_dark"].is_null(), "greedy: {} {}", r["dense_candidates"], r["dense_dark"]),
+        }
+        let found = lights_of(&r);
+        assert_eq!(found.len(), 3, "{init}: as few lights as the scene needs: {found:?}");
+        assert_recovered(&found, &sample_truth(), [0.0; 3], 0.05, 0.02);
+        let err = r["rel_error_final"].as_f64().unwrap();
+        assert!(err < 0.065, "{init}: relative error {err}");
+    }
+}
+
 /// Synthetic ground truth relit from the dense start (`--init dense`): a thousand
 /// candidates, fitted at once, pruned and merged down to the truth's lights, each found
 /// where it is; the CLI refuses a count of 0 and `--fit globals` with it.

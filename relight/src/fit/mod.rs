@@ -131,6 +131,9 @@ pub struct Fitter<'a> {
     pub frozen_minlight: bool,
     /// The linear fit scales each kind of emitter as a whole ([`linear`]).
     pub kind_scales: bool,
+    /// Most solves of a linear fit that takes the chain as local
+    /// ([`linear::CHAIN_ROUNDS`]; 1: the one local solve).
+    pub chain_rounds: usize,
     /// The linear fit's recent light columns through the non-local chain, by their
     /// whole input ([`linear::ColumnCache`]).
     columns: linear::ColumnCache,
@@ -170,6 +173,7 @@ impl<'a> Fitter<'a> {
             failure: None,
             frozen_emitters: false,
             frozen_minlight: false,
+            chain_rounds: linear::CHAIN_ROUNDS,
             kind_scales: false,
             columns: linear::ColumnCache::default(),
         }
