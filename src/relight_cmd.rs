@@ -391,11 +391,11 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     let spots = rep.lights.iter().filter(|l| l.kind == "spot").count();
     match rep.dense_candidates {
         Some(c) => println!(
-            "  lights    {} ({} spots; {}{c} dense candidates, {} left dark by the first fit: pruned {}, merged {})",
+            "  lights    {} ({} spots; {}{c} dense candidates{}: pruned {}, merged {})",
             rep.lights.len(),
             spots,
             if rep.init == "auto" { "placed, then " } else { "from " },
-            rep.dense_dark.unwrap_or(0),
+            rep.dense_dark.map_or(String::new(), |d| format!(", {d} left dark by the first fit")),
             rep.pruned,
             rep.merged
         ),

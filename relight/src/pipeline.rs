@@ -983,9 +983,8 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     }
     // Beside the placement's lights, the candidates the first fit left dark take no part
     // in what follows: the phases would carry them, and pruning would try each. (The dense
-    // start alone keeps them: its phases move the lit candidates towards the lights, and
-    // dark ones come on where those leave a gap; without them its synthetic ground truth
-    // ended at 0.027 instead of 0.008.)
+    // start alone keeps them, as measured before: dropping them there was only measured
+    // together with the chain's rounds, which it does without.)
     let dense_dark = (opts.init == Init::Auto && dense_candidates.is_some()).then(|| drop_dark(&mut fit, &mut sources));
     // The Blender loop's re-run starts from the file's own state: it must not end worse.
     let entry = (matches!(opts.init, Init::Input) && tracing.is_none()).then(|| (fit.model.clone(), fit.locked.clone(), sources.clone(), rel_error_initial));
