@@ -482,21 +482,45 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 /// 0.1500 with 57, 0.1814 with 40, 0.1404 with 62; on 2026-11-28 (tenth), with the low
 /// candidates, converted without the source: 0.0700 with 90, 0.0730 with 87, 0.0630 with
 /// 102), so its bound leaves room for a change of path.
-const RECOVERY: [(&str, f64, usize); 5] = [
-    ("oacmpdm1", 0.1544, 5),
-    ("oacmpdm2", 0.0526, 4),
-    ("oacmpdm3", 0.1289, 7),
-    ("oacmpdm4", 0.0856, 8),
-    ("oacmpctf1", 0.0820, 0),
+///
+/// The last field: the least fraction of the tie class ([`Found::tied_found`]) found,
+/// measured on 2026-12-02 (second session, the default as above): oacmpdm1 174/248 (0.70),
+/// oacmpdm2 10/23 (0.43), oacmpdm3 22/27 (0.81), oacmpdm4 53/53, oacmpctf1 (no tie, its
+/// ten are its sky's neighbours) 0/10. Where the tie is large this is the steadier count:
+/// oacmpdm1's 6/10 is ten of its 248 equal lights, which sit 72 units apart.
+const RECOVERY: [(&str, f64, usize, f64); 5] = [
+    ("oacmpdm1", 0.1544, 5, 0.6),
+    ("oacmpdm2", 0.0526, 4, 0.3),
+    ("oacmpdm3", 0.1289, 7, 0.65),
+    ("oacmpdm4", 0.0856, 8, 0.9),
+    ("oacmpctf1", 0.0820, 0, 0.0),
 ];
 
 /// The fidelity issue's recovery goal: the default within this factor of the source refit.
 const RECOVERY_RATIO: f64 = 1.15;
 
+/// How many of a map's strongest source point lights a relight came near (a fitted point
+/// light within 64 units).
+struct Found {
+    /// Of the 10 strongest (ties in the file's order).
+    first_ten: usize,
+    /// Of every source at least as strong as the 10th: where hundreds share one intensity
+    /// (all 248 of oacmpdm1's, 23 of oacmpdm2's at `light 90`), "the ten strongest" is
+    /// the file's order, and this fraction says what a fit found of that whole class.
+    tied_found: usize,
+    tied: usize,
+}
+
+impl Found {
+    fn tied_fraction(&self) -> f64 {
+        self.tied_found as f64 / self.tied.max(1) as f64
+    }
+}
+
 /// A relight of a truth-set map converted with its `.map` source, from no source light
-/// (`relight` with `args` after the input): its report, its point lights, and how many of
-/// the source's 10 strongest point lights have one of them within 64 units.
-fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, usize) {
+/// (`relight` with `args` after the input): its report, its point lights, and what it
+/// found of the source's strongest point lights.
+fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, Found) {
     let pk3 = common::oacmp().join("z_oacmp-volume1-v3.pk3");
     let source = dir.join(format!("{map}.map"));
     if !source.exists() {
@@ -525,8 +549,11 @@ fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, u
         .collect();
     let reach = 64.0 * 0.0254;
     let near = |p: [f64; 3]| found.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt() <= reach);
-    let hits = sources[..10].iter().filter(|(_, p)| near(*p)).count();
-    (r, found.len(), hits)
+    let first_ten = sources[..10].iter().filter(|(_, p)| near(*p)).count();
+    let tenth = sources[9].0;
+    let tied: Vec<&(f64, [f64; 3])> = sources.iter().filter(|(i, _)| *i >= tenth).collect();
+    let tied_found = tied.iter().filter(|(_, p)| near(*p)).count();
+    (r, found.len(), Found { first_ten, tied_found, tied: tied.len() })
 }
 
 /// Recovery: the default relight (`--init auto`, no source) on the truth-set maps.
@@ -534,15 +561,17 @@ fn recovery(dir: &Path, map: &str, tag: &str, args: &[&str]) -> (Value, usize, u
 fn truth_set_recovery_by_the_default_relight() {
     let dir = tmp("recovery");
     let mut failures = Vec::new();
-    for (map, refit, min_found) in RECOVERY {
+    for (map, refit, min_found, min_tied) in RECOVERY {
         let bound = RECOVERY_RATIO * refit;
-        let (r, lights, hits) = recovery(&dir, map, "auto", &[]);
+        let (r, lights, found) = recovery(&dir, map, "auto", &[]);
+        let hits = found.first_ten;
         assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > 100), "{map}: the default placed no dense candidates: {}", r["dense_candidates"]);
         let err = r["rel_error_final"].as_f64().unwrap();
         common::assert_terms_within_allowance(map, &r);
-        eprintln!("{map:10} {err:.4} ({:.3} x the source refit's {refit}), {lights} lights, {hits}/10 of the strongest sources found (at least {min_found})", err / refit);
-        if !(err <= bound) || hits < min_found {
-            failures.push(format!("{map}: error {err:.4} (bound {bound:.4}: {RECOVERY_RATIO} x {refit}), {hits}/10 found (at least {min_found})"));
+        let tied = format!("{}/{} of the sources at least as strong as the 10th", found.tied_found, found.tied);
+        eprintln!("{map:10} {err:.4} ({:.3} x the source refit's {refit}), {lights} lights, {hits}/10 of the strongest sources found (at least {min_found}), {tied} (at least {min_tied})", err / refit);
+        if !(err <= bound) || hits < min_found || found.tied_fraction() < min_tied {
+            failures.push(format!("{map}: error {err:.4} (bound {bound:.4}: {RECOVERY_RATIO} x {refit}), {hits}/10 found (at least {min_found}), {tied} (at least {min_tied})"));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
@@ -562,10 +591,11 @@ fn truth_set_recovery_by_the_default_relight() {
 #[test]
 fn truth_set_recovery_by_the_dense_start() {
     let dir = tmp("recovery-dense");
-    let (r, lights, hits) = recovery(&dir, "oacmpdm2", "dense", &["--init", "dense"]);
+    let (r, lights, found) = recovery(&dir, "oacmpdm2", "dense", &["--init", "dense"]);
+    let hits = found.first_ten;
     let err = r["rel_error_final"].as_f64().unwrap();
     common::assert_terms_within_allowance("oacmpdm2", &r);
-    eprintln!("oacmpdm2 dense {err:.4}, {lights} lights, {hits}/10 of the strongest sources found");
+    eprintln!("oacmpdm2 dense {err:.4}, {lights} lights, {hits}/10 of the strongest sources found, {}/{} of those at least as strong as the 10th", found.tied_found, found.tied);
     assert!(r["dense_candidates"].as_u64().is_some_and(|c| c > 500), "{}", r["dense_candidates"]);
     assert!(err <= RECOVERY_RATIO * 0.0526, "oacmpdm2 from the dense start: error {err:.4}, over 1.15 x the source refit's 0.0526");
     assert!(hits >= 3, "oacmpdm2 from the dense start: {hits}/10 of the strongest sources found");

@@ -918,6 +918,7 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
             let with = Model { lights: keep.iter().map(|x| x.0).collect(), gathered: bases.gathered.as_ref().map(|_| [0.5; 3]), bounce: None, filter: false, ..start.clone() };
             let (placed, stats) = init::auto(&scene.mesh, &rows, &bases, &bvh, lo, hi, &with, &vec![true; keep.len()], opts.max_lights, PLACEMENT_MIN_GAIN, AUTO_SAMPLE_ROWS, opts.seed, deadline, t_all);
             auto_stats = Some(stats);
+            st.done("init: placement");
             // The placement's fit of the declared emitters is a better start than their
             // declared values.
             start.sun = placed.sun.or(start.sun);
