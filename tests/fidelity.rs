@@ -485,9 +485,9 @@ fn point_lights(doc: &Value) -> Vec<(f64, [f64; 3])> {
 ///
 /// The last field: the least fraction of the tie class ([`Found::tied_found`]) found,
 /// measured on 2026-12-02 (second session, the default as above): oacmpdm1 174/248 (0.70),
-/// oacmpdm2 10/23 (0.43), oacmpdm3 22/27 (0.81), oacmpdm4 53/53, oacmpctf1 (no tie, its
-/// ten are its sky's neighbours) 0/10. Where the tie is large this is the steadier count:
-/// oacmpdm1's 6/10 is ten of its 248 equal lights, which sit 72 units apart.
+/// oacmpdm2 10/23 (0.43), oacmpdm3 22/27 (0.81), oacmpdm4 53/53, oacmpctf1 0/10 (no tie;
+/// skipped, as above). Where the tie is large this is the steadier count: oacmpdm1's 6/10
+/// is ten of its 248 equal lights, most of them 56-96 units from the next.
 const RECOVERY: [(&str, f64, usize, f64); 5] = [
     ("oacmpdm1", 0.1544, 5, 0.6),
     ("oacmpdm2", 0.0526, 4, 0.3),

@@ -199,11 +199,15 @@ impl ColumnCache {
 }
 
 /// One row's share of the normal equations: `rhs_p += w b_p mid`, `gram_pq += w b_p b_q`
-/// over the row's nonzero values `(unknown, b)` (an `m x m` matrix).
+/// over the row's nonzero values `(unknown, b)`, ascending unknowns, into the upper
+/// triangle of an `m x m` matrix (`q >= p`; [`mirror_upper`] fills the rest once every
+/// row is in). The matrix is symmetric, so the lower half was the same products again:
+/// half of the fit's multiply-adds, and the solve now gets a matrix symmetric to the bit.
 fn add_row(gram: &mut [f64], rhs: &mut [f64], m: usize, w: f64, mid: f64, basis: &[(usize, f64)]) {
-    for &(p, bp) in basis {
+    debug_assert!(basis.windows(2).all(|e| e[0].0 < e[1].0), "ascending unknowns");
+    for (a, &(p, bp)) in basis.iter().enumerate() {
         rhs[p] += w * bp * mid;
-        for &(q, bq) in basis {
+        for &(q, bq) in &basis[a..] {
             gram[p * m + q] += w * bp * bq;
         }
     }
@@ -212,16 +216,17 @@ fn add_row(gram: &mut [f64], rhs: &mut [f64], m: usize, w: f64, mid: f64, basis:
 /// [`add_row`] for the three channels at once, `(weight, target)` per channel and each
 /// unknown's three values: per channel the same products, summed in the same order.
 fn add_row3(gram: &mut [Vec<f64>; 3], rhs: &mut [Vec<f64>; 3], m: usize, wm: [(f64, f64); 3], basis: &[(usize, [f64; 3])]) {
+    debug_assert!(basis.windows(2).all(|e| e[0].0 < e[1].0), "ascending unknowns");
     let [g0, g1, g2] = gram;
     let [r0, r1, r2] = rhs;
     let (w0, w1, w2) = (wm[0].0, wm[1].0, wm[2].0);
-    for &(p, bp) in basis {
+    for (a, &(p, bp)) in basis.iter().enumerate() {
         r0[p] += w0 * bp[0] * wm[0].1;
         r1[p] += w1 * bp[1] * wm[1].1;
         r2[p] += w2 * bp[2] * wm[2].1;
         let (s0, s1, s2) = (w0 * bp[0], w1 * bp[1], w2 * bp[2]);
         let (h0, h1, h2) = (&mut g0[p * m..(p + 1) * m], &mut g1[p * m..(p + 1) * m], &mut g2[p * m..(p + 1) * m]);
-        for &(q, bq) in basis {
+        for &(q, bq) in &basis[a..] {
             h0[q] += s0 * bq[0];
             h1[q] += s1 * bq[1];
             h2[q] += s2 * bq[2];
@@ -230,11 +235,11 @@ fn add_row3(gram: &mut [Vec<f64>; 3], rhs: &mut [Vec<f64>; 3], m: usize, wm: [(f
 }
 
 /// [`add_row`] for a row with a value for every unknown in order (`b.len() x b.len()`
-/// matrix), zeros included: each Gram row is one contiguous product (vectorised). The
-/// zeros [`add_row`] never sees add `+0` here, which leaves every sum as it was (sums
-/// that start at `+0` and add nonnegative products never become `-0`), so the two agree
-/// to the bit. Returns false, adding nothing, where a value is not finite (`0 x inf`) or
-/// negative (left to [`add_row`]).
+/// matrix, its upper triangle), zeros included: each Gram row is one contiguous product
+/// (vectorised). The zeros [`add_row`] never sees add `+0` here, which leaves every sum as
+/// it was (sums that start at `+0` and add nonnegative products never become `-0`), so the
+/// two agree to the bit. Returns false, adding nothing, where a value is not finite
+/// (`0 x inf`) or negative (left to [`add_row`]).
 fn add_dense_row(gram: &mut [f64], rhs: &mut [f64], w: f64, mid: f64, b: &[f64]) -> bool {
     let m = b.len();
     if !b.iter().all(|v| v.is_finite() && *v >= 0.0) || !w.is_finite() {
@@ -246,11 +251,33 @@ fn add_dense_row(gram: &mut [f64], rhs: &mut [f64], w: f64, mid: f64, b: &[f64])
         }
         rhs[p] += w * bp * mid;
         let wbp = w * bp;
-        for (g, &bq) in gram[p * m..(p + 1) * m].iter_mut().zip(b) {
+        for (g, &bq) in gram[p * m + p..(p + 1) * m].iter_mut().zip(&b[p..]) {
             *g += wbp * bq;
         }
     }
     true
+}
+
+/// Sums neighbouring entries of the same unknown into one (a row's basis whose columns
+/// share unknowns, in order).
+fn coalesce(basis: &mut Vec<(usize, [f64; 3])>) {
+    basis.dedup_by(|next, kept| {
+        let same = next.0 == kept.0;
+        if same {
+            (0..3).for_each(|c| kept.1[c] += next.1[c]);
+        }
+        same
+    });
+}
+
+/// Copies the upper triangle of an `n x n` matrix onto its lower one (what [`add_row`]
+/// and its kin leave out).
+fn mirror_upper(g: &mut [f64], n: usize) {
+    for p in 0..n {
+        for q in p + 1..n {
+            g[q * n + p] = g[p * n + q];
+        }
+    }
 }
 
 /// The work one [`nnls_cd`] solve may take, multiply-adds.
@@ -768,6 +795,12 @@ impl Fitter<'_> {
                                 _ => {}
                             }
                         }
+                        // With one unknown per kind, a kind's columns (in column order, so
+                        // side by side) share their unknown: one entry, their sum (the
+                        // upper-triangle sums take each unknown once).
+                        if kinds {
+                            coalesce(&mut basis3);
+                        }
                         if let [Some(w0), Some(w1), Some(w2)] = wm {
                             add_row3(&mut part.gram, &mut part.rhs, m, [w0, w1, w2], &basis3);
                             continue;
@@ -806,13 +839,15 @@ impl Fitter<'_> {
                 for (a, &p) in part.unknowns.iter().enumerate() {
                     rhs[c][p] += part.rhs[c][a];
                     let row = &mut gram[c][p * k..(p + 1) * k];
-                    for (b, &q) in part.unknowns.iter().enumerate() {
+                    // The upper triangle (the blocks hold no other).
+                    for (b, &q) in part.unknowns.iter().enumerate().skip(a) {
                         row[q] += part.gram[c][a * m + b];
                     }
                 }
             }
         }
         drop(parts);
+        gram.iter_mut().for_each(|g| mirror_upper(g, k));
         let (frozen, locked) = (self.frozen_emitters, &self.locked);
         // The three channels are independent solves: one per thread.
         let solved: Vec<Vec<f64>> = (0..3)
@@ -1148,6 +1183,40 @@ mod tests {
         }
     }
 
+    /// Columns that share an unknown (one scale per kind, `--fit globals`) summed into one
+    /// entry, then the upper triangle mirrored: the matrix every pair of the columns' own
+    /// entries adds up to (the sum over all ordered pairs, as the full loop summed it).
+    #[test]
+    fn shared_unknowns_add_every_pair_of_their_columns() {
+        let m = 4;
+        let h = |a: u32, b: u32| crate::model::bounce::hash01(a, b) as f64;
+        let (mut g, mut r): ([Vec<f64>; 3], [Vec<f64>; 3]) = (std::array::from_fn(|_| vec![0.0; m * m]), std::array::from_fn(|_| vec![0.0; m]));
+        let mut full: [Vec<f64>; 3] = std::array::from_fn(|_| vec![0.0; m * m]);
+        for row in 0..100u32 {
+            // Three columns of unknown 0, one of 1, two of 3 (2 absent), in order.
+            let cols: Vec<(usize, [f64; 3])> = [0usize, 0, 0, 1, 3, 3].iter().enumerate().map(|(j, &p)| (p, [0, 1, 2].map(|c| h(row, 10 * j as u32 + c)))).collect();
+            let wm = [0, 1, 2].map(|c| (0.5 + h(row, 100 + c), h(row, 200 + c)));
+            for c in 0..3 {
+                for &(p, bp) in &cols {
+                    for &(q, bq) in &cols {
+                        full[c][p * m + q] += wm[c].0 * bp[c] * bq[c];
+                    }
+                }
+            }
+            let mut basis = cols.clone();
+            super::coalesce(&mut basis);
+            assert_eq!(basis.iter().map(|e| e.0).collect::<Vec<_>>(), [0, 1, 3]);
+            super::add_row3(&mut g, &mut r, m, wm, &basis);
+        }
+        for c in 0..3 {
+            super::mirror_upper(&mut g[c], m);
+            for (a, b) in full[c].iter().zip(&g[c]) {
+                assert!((a - b).abs() <= 1e-12 * a.abs().max(1.0), "channel {c}: {a} against {b}");
+            }
+            assert!(g[c][0] > 0.0 && g[c][3] > 0.0 && g[c][2 * m + 2] == 0.0);
+        }
+    }
+
     /// The three channels in one pass add, channel by channel, what three `add_row`s add,
     /// to the bit (weights, targets of both signs and values over eight decades).
     #[test]
@@ -1168,7 +1237,8 @@ mod tests {
         for c in 0..3 {
             assert!(one[c].0.iter().zip(&g3[c]).all(|(a, b)| a.to_bits() == b.to_bits()), "gram, channel {c}");
             assert!(one[c].1.iter().zip(&r3[c]).all(|(a, b)| a.to_bits() == b.to_bits()), "rhs, channel {c}");
-            assert!(g3[c].iter().all(|v| *v > 0.0), "every pair met");
+            assert!((0..m).all(|p| (p..m).all(|q| g3[c][p * m + q] > 0.0)), "every pair met");
+            assert!((0..m).all(|p| (0..p).all(|q| g3[c][p * m + q] == 0.0)), "the lower triangle left to `mirror_upper`");
         }
     }
 }
