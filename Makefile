@@ -118,7 +118,7 @@ bench: build data python-deps
 	bash benches/relight.sh $(BIN) "$${GAME_DIR:-$$(bash $(FETCH))}"
 	bash benches/bake.sh $(BIN)
 	$(VENV)/bin/python benches/scaling.py --bin $(BIN) --scene $(OUT)/bench/relight/oa_dm1.glb --out $(OUT)/bench
-	$(VENV)/bin/python benches/thesis.py --bin $(BIN) --game-dir "$${GAME_DIR:-$$(bash $(FETCH))}" --out $(OUT)/bench $(THESIS_BENCH_FLAGS)
+	$(VENV)/bin/python benches/thesis.py --bin $(BIN) --game-dir "$${GAME_DIR:-$$(bash $(FETCH))}" --game-dir "$$(bash $(FETCH) --oacmp)" --out $(OUT)/bench $(THESIS_BENCH_FLAGS)
 
 # The scaling and thesis benchmarks' quick forms (the bundled sample, under a minute; CI
 # runs them): out/bench/quick/{scaling,thesis}.{md,csv,svg}.

@@ -26,8 +26,12 @@ Writes, under OUT:
     python3 benches/thesis.py --bin target/release/q3gltf --game-dir DIR --out docs/bench
     python3 benches/thesis.py --bin ... --quick        (the bundled sample, small budgets)
 
-Scenes are map names inside the game's pk3s (oa_dm1, oa_dm3 with patches, a large map, the
-truth-set OACMP maps: `--scenes`), or `sample` (the bundled sample).
+Scenes (`--scenes`): `sample` (the bundled sample), `fixture:NAME` (one of our q3map2-compiled
+ground-truth maps, `tests/fixtures/q3map2/maps/NAME.bsp`, converted with its shaders: `point`
+and `pillar` are lit by point lights alone, the one kind of light the thesis's estimator
+has), map names inside the game dirs' pk3s (oa_dm1, oa_dm3 with patches, a large map, the
+truth-set OACMP maps: pass `--game-dir` once for baseoa and once more for the OACMP pack),
+or converted scenes (.glb). Every scene is relit from scratch: no source lights are read.
 """
 from __future__ import annotations
 
@@ -46,6 +50,10 @@ from scaling import machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = [1, 2, 3]
+# The issue's scenes: the sample, two ground-truth fixtures lit by point lights only, oa_dm1,
+# oa_dm3 (patches), a large map (ctf_compromise: 102 lightmap pages, the most of baseoa's maps) and
+# the truth set.
+SCENES = ["sample", "fixture:point", "fixture:pillar", "oa_dm1", "oa_dm3", "ctf_compromise", "oacmpdm1", "oacmpdm2", "oacmpdm3", "oacmpdm4", "oacmpctf1"]
 
 
 def configs(quick: bool, rays: int, cap: int | None) -> list[dict]:
@@ -69,12 +77,32 @@ def configs(quick: bool, rays: int, cap: int | None) -> list[dict]:
     return out
 
 
-def convert(binary: str, scene: str, game_dir: str | None, work: Path) -> Path:
+FIXTURES = ROOT / "tests/fixtures/q3map2"
+
+
+def label(scene: str) -> str:
+    """The name a scene is reported under."""
+    return Path(scene).stem if scene.endswith((".glb", ".gltf")) else scene
+
+
+def convert(binary: str, scene: str, game_dirs: list[str], work: Path) -> Path:
+    """The scene as a converted glTF under `work` (a .glb path is used as it is)."""
     if scene.endswith(".glb") or scene.endswith(".gltf"):
         return Path(scene).resolve()
-    dst = work / f"{scene}.glb"
+    dst = work / f"{scene.replace(':', '-')}.glb"
     if not dst.exists():
-        src = [str(ROOT / "samples/sample/maps/sample.bsp")] if scene == "sample" else [scene, "--game-dir", game_dir or ""]
+        dirs = [x for g in game_dirs for x in ("--game-dir", g)]
+        if scene == "sample":
+            src = [str(ROOT / "samples/sample/maps/sample.bsp")]
+        elif scene.startswith("fixture:"):
+            bsp = FIXTURES / "maps" / f"{scene.split(':', 1)[1]}.bsp"
+            if not bsp.is_file():
+                sys.exit(f"thesis.py: no fixture {bsp}")
+            src = [str(bsp), *dirs, "--game-dir", str(FIXTURES / "scripts")]
+        else:
+            if not game_dirs:
+                sys.exit(f"thesis.py: scene {scene} is a map name: pass --game-dir")
+            src = [scene, *dirs]
         subprocess.run([binary, "convert", *src, "-q", "-o", str(dst)], check=True)
     return dst
 
@@ -157,18 +185,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bin", required=True)
     ap.add_argument("--out", required=True)
-    ap.add_argument("--game-dir")
-    ap.add_argument("--scenes", default="sample,oa_dm1,oa_dm3", help="comma-separated: sample, map names, or converted scenes (.glb)")
+    ap.add_argument("--game-dir", action="append", default=[], help="a game dir for map names and fixtures' textures (repeat: baseoa, then the OACMP pack)")
+    ap.add_argument("--scenes", help="comma-separated: sample, fixture:NAME, map names, or converted scenes (.glb); default: the issue's eleven, or the sample with --quick")
     ap.add_argument("--backends", default="cpu", help="comma-separated: cpu, wgpu")
     ap.add_argument("--rays", type=int, default=100_000, help="rays per light of the thesis's estimator (the thesis: 100,000)")
     ap.add_argument("--max-iterations", type=int, help="caps every phase of the thesis's runs")
     ap.add_argument("--time-limit", type=float, help="seconds per run")
     ap.add_argument("--thesis-time-limit", type=float, help="seconds per run of the thesis's method only (a budget where the whole sweep must fit a lease)")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated seeds (default: three)")
-    ap.add_argument("--quick", action="store_true", help="the bundled sample, three small thesis configurations")
+    ap.add_argument("--quick", action="store_true", help="three small thesis configurations, 10,000 rays per light, 20 iterations a phase; on the bundled sample unless --scenes")
     a = ap.parse_args()
     seeds = [int(x) for x in a.seeds.split(",")]
-    scenes = ["sample"] if a.quick else a.scenes.split(",")
+    scenes = a.scenes.split(",") if a.scenes else ["sample"] if a.quick else SCENES
     rays = min(a.rays, 10_000) if a.quick else a.rays
     cap = a.max_iterations or (20 if a.quick else None)
     out = Path(a.out)
@@ -179,6 +207,7 @@ def main() -> None:
         work = Path(tmp)
         for scene in scenes:
             glb = convert(a.bin, scene, a.game_dir, work)
+            scene = label(scene)
             for cfg in configs(a.quick, rays, cap):
                 for backend in a.backends.split(","):
                     for seed in seeds:
@@ -210,9 +239,8 @@ def main() -> None:
           "Errors are each run's relative error on its own target (luxel or vertex rows; `ours default, vertex` and the thesis's runs share the vertex rows). "
           "Median over seeds, spread min-max; the time to within 1% is when the run's curve first came within 1% of its own best error.\n"]
     svg, y = [], 0
-    for scene in scenes:
-        label = Path(scene).stem if scene.endswith((".glb", ".gltf")) else scene
-        md += [f"## {label}\n", "| configuration | backend | target | final error (median) | spread | time to within 1% (s) | wall (s) | lights | evaluations |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    for scene in map(label, scenes):
+        md += [f"## {scene}\n", "| configuration | backend | target | final error (median) | spread | time to within 1% (s) | wall (s) | lights | evaluations |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
         groups: dict[tuple[str, str], list[dict]] = {}
         for r in runs:
             if r["scene"] == scene:
@@ -241,11 +269,11 @@ def main() -> None:
             mid = rs[len(rs) // 2]
             pts = [(c["time_s"], c["rel_error"]) for c in curves if c["scene"] == scene and c["config"] == name and c["backend"] == backend and c["seed"] == mid["seed"]]
             series.append((f"{name} ({backend})", pts, colours[(name, backend)], False))
-        svg.append(panel(0, y, f"{label}: error against time (median seed)", "seconds", series, True))
+        svg.append(panel(0, y, f"{scene}: error against time (median seed)", "seconds", series, True))
         allpts = [(r["wall"], r["error"]) for r in runs if r["scene"] == scene]
         front = pareto(allpts)
         scat = [(f"{n} ({b})", [(r["wall"], r["error"]) for r in groups[(n, b)]], colours[(n, b)], True) for (n, b) in sorted(groups)]
-        svg.append(panel(540, y, f"{label}: final error against wall time (Pareto front)", "wall seconds", scat + [("Pareto front", front, "#000", False)], False))
+        svg.append(panel(540, y, f"{scene}: final error against wall time (Pareto front)", "wall seconds", scat + [("Pareto front", front, "#000", False)], False))
         y += 400
     (out / "thesis.md").write_text("\n".join(md) + "\n")
     (out / "thesis.svg").write_text(f'<svg xmlns="http://www.w3.org/2000/svg" width="1080" height="{max(y, 400)}" font-family="sans-serif">\n<rect width="100%" height="100%" fill="white"/>\n' + "\n".join(svg) + "\n</svg>\n")
