@@ -428,8 +428,14 @@ struct Stages {
     list: Vec<(String, f64)>,
 }
 impl Stages {
+    /// Ends a stage: its time since the last one, added to the entry of the same name
+    /// if the stage ran before (a stage that alternates with another keeps one total).
     fn done(&mut self, name: &str) {
-        self.list.push((name.to_string(), self.t.elapsed().as_secs_f64()));
+        let s = self.t.elapsed().as_secs_f64();
+        match self.list.iter_mut().find(|e| e.0 == name) {
+            Some(e) => e.1 += s,
+            None => self.list.push((name.to_string(), s)),
+        }
         self.t = Instant::now();
     }
 }
@@ -1036,15 +1042,18 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     for round in 0..sun_rounds {
         if let Some(s) = fit.model.sun.filter(|_| !fit.out_of_time()) {
             refine_sun(&mut fit, s, opts.seed);
+            st.done("prune: sun search");
             let turned = fit.model.sun.is_some_and(|n| sun_turned(s.to_sun, n.to_sun));
             if round > 0 && !turned {
                 break;
             }
             fit.run_phase("polish", polish);
+            st.done("prune: polish");
         }
     }
     if sun_rounds == 0 && (pruned + merged > 0 || !term_reports.is_empty()) && !fit.out_of_time() {
         fit.run_phase("polish", polish);
+        st.done("prune: polish");
     }
     // Lights placed while the sun still shone from the placement's coarse direction may have
     // drawn its patches' edges (the placement's low candidates stand a few decimetres over
@@ -1057,10 +1066,12 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         if again > 0 {
             pruned += again;
             sources = reassociate(&fit.model.lights, &before, &sources);
+            st.done("prune: lights again");
             fit.run_phase("polish", polish);
+            st.done("prune: polish");
         }
     }
-    st.done("prune: sun, polish");
+    st.done("prune: lights again");
     // The final state exactly: the fit re-traces a light only once it has moved more than
     // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
     // every light where it is and refit the linear coefficients for it.
