@@ -1063,15 +1063,14 @@ pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     if (sun_rounds > 0 || dense_candidates.is_some()) && may_prune && !fit.out_of_time() {
         let before: Vec<Vec3> = fit.model.lights.iter().map(|l| l.pos).collect();
         let again = fit.prune(0.002);
+        st.done("prune: lights again");
         if again > 0 {
             pruned += again;
             sources = reassociate(&fit.model.lights, &before, &sources);
-            st.done("prune: lights again");
             fit.run_phase("polish", polish);
             st.done("prune: polish");
         }
     }
-    st.done("prune: lights again");
     // The final state exactly: the fit re-traces a light only once it has moved more than
     // `retrace_tol` (5 cm on oa_dm1), which leaves shadow edges up to that far off; trace
     // every light where it is and refit the linear coefficients for it.
