@@ -745,7 +745,7 @@ mod tests {
         fit.model.lights.push(Light::point(Vec3::new(-1.0, 1.0, 1.0), [1.0; 3]));
         fit.locked = vec![false; 5];
         fit.refresh_visibility();
-        fit.vis.bits[4].iter_mut().for_each(|w| *w = 0);
+        std::sync::Arc::make_mut(&mut fit.vis.bits[4]).iter_mut().for_each(|w| *w = 0);
         let whole = fit.eval().rel_error;
         assert!(fit.vis.reached_rows(&[4]).is_empty());
         let s = fit.run_phase_on_reach("none reached", lbfgs(20), &[4], whole);

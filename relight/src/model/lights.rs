@@ -470,7 +470,7 @@ mod tests {
         check(&vis, &lights, "a light moved");
         let _ = unit_lists(&rows, &vis, &lights, true);
         check(&vis, &lights, "a light moved, cached again");
-        let other = patterned_visibility(n, 2).bits[1].clone();
+        let other = patterned_visibility(n, 2).bits[1].to_vec();
         vis.set_traced(4, other, Vec3::ONE, 3.0);
         check(&vis, &lights, "a light re-traced");
         let _ = unit_lists(&rows, &vis, &lights, true);

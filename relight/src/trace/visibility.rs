@@ -19,8 +19,9 @@ use crate::trace::bvh::{Bvh, Occluder, EDGE_SLACK};
 pub struct Visibility {
     /// Bits per light, `words_per_light` u32 words each. Replaced through
     /// [`Visibility::update`], [`Visibility::set_traced`] or [`Visibility::push_traced`],
-    /// which keep `units` in step.
-    pub bits: Vec<Vec<u32>>,
+    /// which keep `units` in step; shared by clones (the fits save and restore the whole
+    /// cache at every try: hundreds of lights' bits, megabytes a copy).
+    pub bits: Vec<Bits>,
     /// Per light: the unit factors cached for its bits ([`UnitSlot`]); shared by clones,
     /// replaced (never changed in place) when the light's bits change.
     units: Vec<std::sync::Arc<UnitSlot>>,
@@ -103,7 +104,7 @@ impl Visibility {
     /// Light `j`'s bits as traced from `at` to `reach` (its cached unit factors dropped).
     pub fn set_traced(&mut self, j: usize, bits: Vec<u32>, at: Vec3, reach: f32) {
         self.units.resize_with(self.bits.len(), Default::default);
-        self.bits[j] = bits;
+        self.bits[j] = Bits::new(bits);
         self.traced_at[j] = at;
         self.traced_reach[j] = reach;
         self.units[j] = Default::default();
@@ -112,7 +113,7 @@ impl Visibility {
     /// A further light's bits, as traced from `at` to `reach`.
     pub fn push_traced(&mut self, bits: Vec<u32>, at: Vec3, reach: f32) {
         self.units.resize_with(self.bits.len(), Default::default);
-        self.bits.push(bits);
+        self.bits.push(Bits::new(bits));
         self.traced_at.push(at);
         self.traced_reach.push(reach);
         self.units.push(Default::default());
@@ -161,7 +162,7 @@ impl Visibility {
         let words = js.iter().map(|&j| self.bits[j].len()).max().unwrap_or(0);
         let mut union = vec![0u32; words];
         for &j in js {
-            union.iter_mut().zip(&self.bits[j]).for_each(|(u, &w)| *u |= w);
+            union.iter_mut().zip(self.bits[j].iter()).for_each(|(u, &w)| *u |= w);
         }
         let mut rows = Vec::new();
         each_set_bit(&union, 0..32 * words, |i| rows.push(i));
@@ -182,7 +183,7 @@ impl Visibility {
             out
         };
         Visibility {
-            bits: js.iter().map(|&j| pick(&self.bits[j])).collect(),
+            bits: js.iter().map(|&j| Bits::new(pick(&self.bits[j]))).collect(),
             traced_at: js.iter().map(|&j| self.traced_at[j]).collect(),
             traced_reach: js.iter().map(|&j| self.traced_reach[j]).collect(),
             units: Vec::new(),
@@ -215,6 +216,10 @@ impl Visibility {
         self.units.remove(j);
     }
 }
+
+/// One light's visibility bits (32 rows a word), shared by the clones of a
+/// [`Visibility`]: never changed in place, replaced whole.
+pub type Bits = std::sync::Arc<Vec<u32>>;
 
 /// Calls `f(row)` for every set bit of `bits` in `rows`, in ascending order, 32 rows per
 /// word (a word with no bit set costs one test).
