@@ -477,17 +477,22 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
     let (f, num, rho_x) = residuals(rows, &fw, true);
     let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
     ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
-    // rho_T: through the albedo and the minlight floor.
+    // rho_T: through the albedo and the minlight floor. The sums (minlight, gathered) in
+    // row order, on one thread; without them, a map over the rows.
     let mut rho_t = vec![[0.0f64; 3]; n];
-    for i in 0..n {
-        for c in 0..3 {
-            let a = rows.albedo[i][c] as f64 / PI * rho_x[i][c];
-            match model.minlight {
-                Some(m) if fw.total[i][c] <= m[c] as f64 => ev.minlight[c] += a,
-                _ => rho_t[i][c] = a,
-            }
-            if let Some(o) = &bases.gathered {
-                ev.gathered[c] += rho_x[i][c] * o[i][c] as f64;
+    if model.minlight.is_none() && bases.gathered.is_none() {
+        rho_t.par_iter_mut().enumerate().for_each(|(i, r)| *r = [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / PI * rho_x[i][c]));
+    } else {
+        for i in 0..n {
+            for c in 0..3 {
+                let a = rows.albedo[i][c] as f64 / PI * rho_x[i][c];
+                match model.minlight {
+                    Some(m) if fw.total[i][c] <= m[c] as f64 => ev.minlight[c] += a,
+                    _ => rho_t[i][c] = a,
+                }
+                if let Some(o) = &bases.gathered {
+                    ev.gathered[c] += rho_x[i][c] * o[i][c] as f64;
+                }
             }
         }
     }
@@ -504,9 +509,9 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
         for _ in 1..fw.passes.len() {
             // G^T a = albedo K^T k Filter^T dirt a ... applied right to left.
             let mut v = dirt_filter_adjoint(model, bases, a);
-            v.iter_mut().for_each(|x| (0..3).for_each(|c| x[c] *= k[c] as f64));
+            v.par_iter_mut().for_each(|x| (0..3).for_each(|c| x[c] *= k[c] as f64));
             a = op.apply_transposed(&v, Some(&bases.bounce_reflectance));
-            rho_0.iter_mut().zip(&a).for_each(|(r, v)| (0..3).for_each(|c| r[c] += v[c]));
+            rho_0.par_iter_mut().zip(&a).for_each(|(r, v)| (0..3).for_each(|c| r[c] += v[c]));
         }
     }
     // Ambient (before dirt, after the filter), then rho_D = Filter^T (dirt rho_0).
@@ -533,7 +538,7 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
     ev.lights = if model.lights.is_empty() {
         Vec::new()
     } else {
-        let rho32: Vec<[f32; 3]> = rho_d.iter().map(|r| r.map(|v| v as f32)).collect();
+        let rho32: Vec<[f32; 3]> = rho_d.par_iter().map(|r| r.map(|v| v as f32)).collect();
         backend.gradient(vis, &model.lights, &rho32)?
     };
     Ok(ev)
