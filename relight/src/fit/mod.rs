@@ -139,6 +139,13 @@ pub struct Fitter<'a> {
     columns: linear::ColumnCache,
 }
 
+/// What an evaluation of a model on a visibility ([`visibility::Snapshot`]) found: its
+/// forward chain (a frozen evaluation) or the whole evaluation.
+enum Known {
+    Forward(visibility::Snapshot, model::Forward),
+    Eval(visibility::Snapshot, Eval),
+}
+
 /// The least distance lights keep from surfaces in a light box from `lo` to `hi`, m: a
 /// 500th of its diagonal, at least 5 cm.
 pub fn min_dist(lo: Vec3, hi: Vec3) -> f32 {
@@ -267,12 +274,23 @@ impl<'a> Fitter<'a> {
     }
 
     pub fn eval_model(&mut self, m: &Model) -> Eval {
+        self.eval_model_knowing(m, None)
+    }
+
+    /// [`Fitter::eval_model`] where part of the answer may be known already (`known`, for
+    /// `m` on the visibility it names): taken where the re-trace leaves that visibility as
+    /// it was, for the same result without computing it again.
+    fn eval_model_knowing(&mut self, m: &Model, known: Option<Known>) -> Eval {
         if self.failure.is_some() {
             return Eval::failed(m);
         }
         let r = self.retrace(m).and_then(|_| {
             self.evaluations += 1;
-            model::evaluate(m, self.rows, self.bases, &self.vis, self.backend)
+            match known {
+                Some(Known::Forward(at, fw)) if self.vis.is(&at) => model::evaluate_from(m, self.rows, self.bases, &self.vis, self.backend, fw),
+                Some(Known::Eval(at, ev)) if self.vis.is(&at) => Ok(ev),
+                _ => model::evaluate(m, self.rows, self.bases, &self.vis, self.backend),
+            }
         });
         match r {
             Ok(ev) => ev,
@@ -548,13 +566,27 @@ impl<'a> Fitter<'a> {
         let sampled = self.backend.rays_traced().is_some();
         self.phase_index += 1;
         let last_err = std::cell::Cell::new(before);
+        // The last evaluation's point and what it knew there: a trial's forward chain (the
+        // accepted trial is evaluated afresh next, and where no light is re-traced there
+        // its irradiance and chain are the trial's), or a fresh evaluation (the phase ends
+        // at its best point, mostly its last, and evaluates it again).
+        let last = std::cell::RefCell::new(None::<(Vec<f64>, Known)>);
+        let at = |x: &[f64]| last.borrow_mut().take().filter(|(p, _)| p.len() == x.len() && p.iter().zip(x).all(|(a, b)| a.to_bits() == b.to_bits())).map(|(_, k)| k);
         let outcome = {
             let this = std::cell::RefCell::new(&mut *self);
             let mut objective = |x: &[f64], fresh: bool| -> (f64, Vec<f64>) {
                 let mut me = this.borrow_mut();
                 let m = me.codec.decode(&layout, x);
                 // A line-search trial needs the value only.
-                let ev = if fresh { me.eval_model(&m) } else { me.value_frozen(&m) };
+                let ev = if fresh {
+                    let ev = me.eval_model_knowing(&m, at(x));
+                    *last.borrow_mut() = Some((x.to_vec(), Known::Eval(me.vis.snapshot(), ev.clone())));
+                    ev
+                } else {
+                    let (ev, fw) = me.value_frozen_and_forward(&m);
+                    *last.borrow_mut() = fw.map(|fw| (x.to_vec(), Known::Forward(me.vis.snapshot(), fw)));
+                    ev
+                };
                 let (pen, pgrad) = me.penalty(&m.lights);
                 last_err.set(ev.rel_error);
                 let g = if !fresh {
@@ -584,7 +616,10 @@ impl<'a> Fitter<'a> {
             }
         };
         self.model = self.codec.decode(&layout, &outcome.x);
-        let mut end_eval = self.eval();
+        let mut end_eval = {
+            let m = self.model.clone();
+            self.eval_model_knowing(&m, at(&outcome.x))
+        };
         if !(end_eval.f + self.penalty(&self.model.lights).0 <= start.1) {
             // Undone: the start's model with the shadows it was evaluated with. Re-tracing
             // would not give them back: a light is re-traced only beyond the tolerance, so

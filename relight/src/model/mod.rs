@@ -470,9 +470,17 @@ fn residuals(rows: &Rows, fw: &Forward, keep: bool) -> (f64, f64, Vec<[f64; 3]>)
 
 /// Objective, relative error and gradient of every parameter.
 pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<Eval> {
-    let n = rows.len();
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
+    evaluate_from(model, rows, bases, vis, backend, fw)
+}
+
+/// [`evaluate`] given the model's forward chain `fw` under the same visibility (what
+/// [`value_and_forward`] returned for it): the same [`Eval`] to the bit, without the
+/// irradiance and the chain computed again (a line search's accepted trial, evaluated
+/// afresh where no light was re-traced).
+pub fn evaluate_from(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, fw: Forward) -> Result<Eval> {
+    let n = rows.len();
     // Residuals: rho_x and the objective.
     let (f, num, rho_x) = residuals(rows, &fw, true);
     let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
@@ -666,6 +674,10 @@ mod tests {
         };
         let one = on(1);
         assert_eq!(one.2, format!("{ev:?}"));
+        // Given the forward chain a frozen evaluation ran (a line search's accepted
+        // trial), the evaluation is the same to the bit (`{:?}` prints every f64 exactly).
+        let (_, fw) = value_and_forward(&model, &rows, &bases, &vis, &mut cpu).unwrap();
+        assert_eq!(format!("{:?}", evaluate_from(&model, &rows, &bases, &vis, &mut cpu, fw).unwrap()), format!("{ev:?}"));
         for threads in [2, 3, 8] {
             assert!(on(threads) == one, "{threads} threads");
         }

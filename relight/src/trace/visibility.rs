@@ -35,7 +35,28 @@ pub struct Visibility {
     pub rays: u64,
 }
 
+/// What an evaluation reads of a [`Visibility`] (each light's bits, the sun's), held so
+/// that a later state can be asked whether it is the same ([`Visibility::is`]).
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// Held, so that no other light's bits can take their allocation while this lives.
+    bits: Vec<Bits>,
+    sun: Option<(Vec3, Vec<u32>)>,
+}
+
 impl Visibility {
+    /// The state an evaluation reads now.
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot { bits: self.bits.clone(), sun: self.sun.clone() }
+    }
+
+    /// Whether every light's bits and the sun's are those of `s`: the same lights' bits by
+    /// identity (never changed in place, replaced whole), the sun's by value. Where it
+    /// holds, an evaluation of one model gives what it gave at `s`, to the bit.
+    pub fn is(&self, s: &Snapshot) -> bool {
+        self.bits.len() == s.bits.len() && self.bits.iter().zip(&s.bits).all(|(a, b)| std::sync::Arc::ptr_eq(a, b)) && self.sun.as_ref().map(|(d, b)| (d.to_array().map(f32::to_bits), b)) == s.sun.as_ref().map(|(d, b)| (d.to_array().map(f32::to_bits), b))
+    }
+
     #[inline]
     pub fn visible(&self, light: usize, vertex: usize) -> bool {
         self.bits[light][vertex >> 5] >> (vertex & 31) & 1 == 1
@@ -529,6 +550,39 @@ mod tests {
     use super::*;
     use crate::backend::{Backend, Cpu};
     use crate::model::bounce::hash01;
+
+    /// A snapshot names the state it was taken of: a clone of it, and an update that
+    /// traced nothing, still are it; a light traced again (even to the same bits), a light
+    /// removed or added, and a turned sun are not.
+    #[test]
+    fn a_snapshot_names_the_state_an_evaluation_read() {
+        let sampling = crate::rows::Sampling::default();
+        let mut v = Visibility::default();
+        v.push_traced(vec![0b1011], Vec3::ZERO, f32::INFINITY);
+        v.push_traced(vec![0b0110], Vec3::ONE, f32::INFINITY);
+        v.sun = Some((Vec3::Y, vec![0b1]));
+        let s = v.snapshot();
+        assert!(v.is(&s) && v.clone().is(&s));
+        let mut nothing = |_: &[(Vec3, f32)]| -> crate::error::Result<Vec<Vec<u32>>> { panic!("nothing is stale") };
+        let mut still = v.clone();
+        assert_eq!(still.update(&[(Vec3::ZERO, 0.0), (Vec3::ONE, 0.0)], 0.1, &sampling, 4, &mut nothing).unwrap(), 0);
+        assert!(still.is(&s));
+        let mut again = v.clone();
+        again.set_traced(0, vec![0b1011], Vec3::ZERO, f32::INFINITY);
+        assert!(!again.is(&s), "traced again");
+        let mut fewer = v.clone();
+        fewer.remove(1);
+        assert!(!fewer.is(&s), "a light removed");
+        let mut more = v.clone();
+        more.push_traced(vec![0], Vec3::X, 1.0);
+        assert!(!more.is(&s), "a light added");
+        let mut turned = v.clone();
+        turned.sun = Some((Vec3::X, vec![0b1]));
+        assert!(!turned.is(&s), "the sun turned");
+        let mut shaded = v;
+        shaded.sun = Some((Vec3::Y, vec![0b0]));
+        assert!(!shaded.is(&s), "the sun's bits changed");
+    }
 
     /// The set bits within a range, each once, in ascending order: what testing every
     /// row's bit gives (ranges that start and end inside a word, at a word's edge, empty,
