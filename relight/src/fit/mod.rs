@@ -569,8 +569,11 @@ impl<'a> Fitter<'a> {
         // The last evaluation's point and what it knew there: a trial's forward chain (the
         // accepted trial is evaluated afresh next, and where no light is re-traced there
         // its irradiance and chain are the trial's), or a fresh evaluation (the phase ends
-        // at its best point, mostly its last, and evaluates it again).
+        // at its best point, mostly its last, and evaluates it again). Not on a sampled
+        // objective (the light-tracing estimator): there each evaluation draws its own
+        // light paths, and the fresh one must not take the trial's.
         let last = std::cell::RefCell::new(None::<(Vec<f64>, Known)>);
+        let remember = |x: &[f64], k: Option<Known>| *last.borrow_mut() = k.filter(|_| !sampled).map(|k| (x.to_vec(), k));
         let at = |x: &[f64]| last.borrow_mut().take().filter(|(p, _)| p.len() == x.len() && p.iter().zip(x).all(|(a, b)| a.to_bits() == b.to_bits())).map(|(_, k)| k);
         let outcome = {
             let this = std::cell::RefCell::new(&mut *self);
@@ -580,11 +583,11 @@ impl<'a> Fitter<'a> {
                 // A line-search trial needs the value only.
                 let ev = if fresh {
                     let ev = me.eval_model_knowing(&m, at(x));
-                    *last.borrow_mut() = Some((x.to_vec(), Known::Eval(me.vis.snapshot(), ev.clone())));
+                    remember(x, Some(Known::Eval(me.vis.snapshot(), ev.clone())));
                     ev
                 } else {
                     let (ev, fw) = me.value_frozen_and_forward(&m);
-                    *last.borrow_mut() = fw.map(|fw| (x.to_vec(), Known::Forward(me.vis.snapshot(), fw)));
+                    remember(x, fw.map(|fw| Known::Forward(me.vis.snapshot(), fw)));
                     ev
                 };
                 let (pen, pgrad) = me.penalty(&m.lights);
