@@ -573,7 +573,7 @@ impl<'a> Fitter<'a> {
         // objective (the light-tracing estimator): there each evaluation draws its own
         // light paths, and the fresh one must not take the trial's.
         let last = std::cell::RefCell::new(None::<(Vec<f64>, Known)>);
-        let remember = |x: &[f64], k: Option<Known>| *last.borrow_mut() = k.filter(|_| !sampled).map(|k| (x.to_vec(), k));
+        let remember = |x: &[f64], k: Option<Known>| *last.borrow_mut() = k.map(|k| (x.to_vec(), k));
         let at = |x: &[f64]| last.borrow_mut().take().filter(|(p, _)| p.len() == x.len() && p.iter().zip(x).all(|(a, b)| a.to_bits() == b.to_bits())).map(|(_, k)| k);
         let outcome = {
             let this = std::cell::RefCell::new(&mut *self);
@@ -583,11 +583,11 @@ impl<'a> Fitter<'a> {
                 // A line-search trial needs the value only.
                 let ev = if fresh {
                     let ev = me.eval_model_knowing(&m, at(x));
-                    remember(x, Some(Known::Eval(me.vis.snapshot(), ev.clone())));
+                    remember(x, (!sampled).then(|| Known::Eval(me.vis.snapshot(), ev.clone())));
                     ev
                 } else {
                     let (ev, fw) = me.value_frozen_and_forward(&m);
-                    remember(x, fw.map(|fw| Known::Forward(me.vis.snapshot(), fw)));
+                    remember(x, fw.filter(|_| !sampled).map(|fw| Known::Forward(me.vis.snapshot(), fw)));
                     ev
                 };
                 let (pen, pgrad) = me.penalty(&m.lights);
