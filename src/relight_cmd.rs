@@ -190,37 +190,47 @@ pub fn probe(a: ProbeArgs) -> Result<(), String> {
     Ok(())
 }
 
+/// The command line's display: a spinner per stage, a bar per optimiser phase. Behind a
+/// mutex because the relight reports from a thread of rayon's pool.
 struct Bars {
     quiet: bool,
-    bar: std::cell::RefCell<Option<indicatif::ProgressBar>>,
+    bar: std::sync::Mutex<Option<indicatif::ProgressBar>>,
+}
+
+impl Bars {
+    /// The current bar (a display that panicked once is still a display).
+    fn bar(&self) -> std::sync::MutexGuard<'_, Option<indicatif::ProgressBar>> {
+        self.bar.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
 }
 
 impl Progress for Bars {
     fn stage(&self, name: &str) {
-        if let Some(b) = self.bar.borrow_mut().take() {
+        let mut bar = self.bar();
+        if let Some(b) = bar.take() {
             b.finish_and_clear();
         }
         if !self.quiet {
             let b = indicatif::ProgressBar::new_spinner();
             b.set_message(name.to_string());
             b.enable_steady_tick(Duration::from_millis(120));
-            *self.bar.borrow_mut() = Some(b);
+            *bar = Some(b);
         }
     }
     fn phase(&self, name: &str, max_iterations: usize) {
         self.stage(name);
-        if let Some(b) = &*self.bar.borrow() {
+        if let Some(b) = &*self.bar() {
             b.set_length(max_iterations as u64);
             b.set_style(indicatif::ProgressStyle::with_template("{msg:12} [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
         }
     }
     fn iteration(&self, rec: &IterRecord) {
-        if let Some(b) = &*self.bar.borrow() {
+        if let Some(b) = &*self.bar() {
             b.set_position(rec.iteration as u64);
         }
     }
     fn phase_done(&self) {
-        if let Some(b) = self.bar.borrow_mut().take() {
+        if let Some(b) = self.bar().take() {
             b.finish_and_clear();
         }
     }

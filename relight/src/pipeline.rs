@@ -232,8 +232,9 @@ impl Default for Options {
 }
 
 /// What the command line shows while the work goes on. Methods take `&self` so the
-/// optimiser's per-iteration callback can hold the display while stages are reported.
-pub trait Progress {
+/// optimiser's per-iteration callback can hold the display while stages are reported;
+/// `Sync` because [`run`] does its work on a thread of rayon's pool, not the caller's.
+pub trait Progress: Sync {
     fn stage(&self, _name: &str) {}
     fn phase(&self, _name: &str, _max_iterations: usize) {}
     fn iteration(&self, _rec: &IterRecord) {}
@@ -773,7 +774,19 @@ fn drop_dark(fit: &mut Fitter, sources: &mut Vec<Option<usize>>) -> usize {
     dark.len()
 }
 
+/// Relights `opts.input` into `opts.output` (see the crate docs), on a thread of rayon's
+/// pool: the caller's thread waits. A parallel loop started outside the pool is handed to
+/// it as a job and its caller sleeps until the job ends, a hand-off and two wake-ups per
+/// loop; started on a worker, the loop splits by work stealing and the worker takes a
+/// share. A relight runs tens of thousands of short loops (every evaluation of the
+/// objective is several), so the hand-offs were about 3% of oa_dm1's default run on two
+/// cores (docs/speed.md). The result is the same to the bit: every parallel sum in the
+/// crate is ordered by blocks of rows, not by threads.
 pub fn run(opts: &Options, progress: &dyn Progress) -> Result<Report> {
+    rayon::scope(|_| run_on_worker(opts, progress))
+}
+
+fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     let t_all = Instant::now();
     let deadline = opts.time_limit.map(|d| t_all + d);
     let mut st = Stages { t: Instant::now(), list: Vec::new() };

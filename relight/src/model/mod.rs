@@ -254,6 +254,22 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
     let n = rows.len();
     let mut direct: Vec<[f64; 3]> = if e_lights.len() == n { e_lights.par_iter().map(|e| e.map(|v| v as f64)).collect() } else { vec![[0.0; 3]; n] };
     add_other_emitters(model, rows, bases, vis, &mut direct);
+    if chain_is_local(model, bases) {
+        forward_local(model, rows, bases, direct)
+    } else {
+        forward_chain(model, rows, bases, direct)
+    }
+}
+
+/// Whether the model's chain is local: no filter and no bounce, each row's radiance its
+/// own irradiance's ([`forward_local`]).
+fn chain_is_local(model: &Model, bases: &Bases) -> bool {
+    filter_of(model, bases).is_none() && !(model.bounce.is_some() && bases.bounce.is_some() && bases.bounces > 0)
+}
+
+/// [`forward`] from the emitters' irradiance `direct`, step by step: any chain.
+fn forward_chain(model: &Model, rows: &Rows, bases: &Bases, direct: Vec<[f64; 3]>) -> Forward {
+    let n = rows.len();
     // T_0 = dirt (ambient + Filter D).
     let mut f = match filter_of(model, bases) {
         Some(op) => op.apply(&direct, None),
@@ -291,6 +307,46 @@ pub fn forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, e_li
         })
         .collect();
     Forward { direct, passes, total, x }
+}
+
+/// [`forward_chain`] where the chain is local ([`chain_is_local`]):
+/// `T_0 = dirt (ambient + D)`, the total `T_0 + H` and the radiance, row by row in one
+/// parallel pass. There the steps' loops and copies, one after the other, were a
+/// parallel loop each (an evaluation on a light's reach in the placement is short, and
+/// each loop's start and end cost about as much as its rows); here each row's values are
+/// the same operations in the same order: the same bits (a test).
+fn forward_local(model: &Model, rows: &Rows, bases: &Bases, direct: Vec<[f64; 3]>) -> Forward {
+    let n = rows.len();
+    let dirt = bases.dirt_of(model);
+    let held = bases.held.as_deref();
+    let gathered = model.gathered.zip(bases.gathered.as_deref());
+    // Collected, not zeroed and then written: the three vectors are megabytes each.
+    type PerRow = Vec<[f64; 3]>;
+    let (t0, (total, x)): (PerRow, (PerRow, PerRow)) = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut v = direct[i];
+            if let Some(a) = model.ambient {
+                (0..3).for_each(|c| v[c] += a[c] as f64);
+            }
+            if let Some(d) = dirt {
+                (0..3).for_each(|c| v[c] *= d[i] as f64);
+            }
+            let t0 = v;
+            if let Some(h) = held.and_then(|h| h.get(i)) {
+                (0..3).for_each(|c| v[c] += h[c]);
+            }
+            let x = [0, 1, 2].map(|c| {
+                let mut r = rows.albedo[i][c] as f64 / PI * model.floored(v[c], c);
+                if let Some((k, o)) = gathered {
+                    r += k[c] as f64 * o[i][c] as f64;
+                }
+                r
+            });
+            (t0, (v, x))
+        })
+        .unzip();
+    Forward { direct, passes: vec![t0], total, x }
 }
 
 /// A vector over the rows and the rows where it can be nonzero (ascending; `None`: any).
@@ -428,22 +484,23 @@ pub fn value(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backen
 pub fn value_and_forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend) -> Result<(Eval, Forward)> {
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
-    let (f, num, _) = residuals(rows, &fw, false);
+    let (f, num, _) = residuals(rows, &fw, None);
     let rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
     Ok((Eval { f, rel_error, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() }, fw))
 }
 
 /// The objective, the error's numerator (`sum A w (x - clamp)^2`) and, with `keep`,
-/// `rho_x = dF/dx` per row: per block of rows summed in row order, the blocks in order
-/// (the same bits on any number of threads, with or without `rho_x`).
-fn residuals(rows: &Rows, fw: &Forward, keep: bool) -> (f64, f64, Vec<[f64; 3]>) {
+/// `keep(i, rho_x_i)` per row for `rho_x = dF/dx` (the caller's first steps back along
+/// the chain, in the same pass): per block of rows summed in row order, the blocks in
+/// order (the same bits on any number of threads, with or without `keep`).
+fn residuals(rows: &Rows, fw: &Forward, keep: Option<&(dyn Fn(usize, [f64; 3]) -> [f64; 3] + Sync)>) -> (f64, f64, Vec<[f64; 3]>) {
     let n = rows.len();
     let chunk = crate::rows::block_rows(n);
     let parts: Vec<(f64, f64, Vec<[f64; 3]>)> = (0..n.div_ceil(chunk))
         .into_par_iter()
         .map(|ci| {
             let (mut f, mut num) = (0.0, 0.0);
-            let mut rho: Vec<[f64; 3]> = Vec::with_capacity(if keep { chunk } else { 0 });
+            let mut rho: Vec<[f64; 3]> = Vec::with_capacity(if keep.is_some() { chunk } else { 0 });
             for i in ci * chunk..((ci + 1) * chunk).min(n) {
                 let r = [0, 1, 2].map(|c| {
                     let (fi, r, ni) = residual(fw.x[i][c], rows.lo[i][c] as f64, rows.hi[i][c] as f64, rows.weight[i][c] as f64, rows.lower[i][c] as f64, rows.area[i] as f64);
@@ -451,15 +508,15 @@ fn residuals(rows: &Rows, fw: &Forward, keep: bool) -> (f64, f64, Vec<[f64; 3]>)
                     num += ni;
                     r
                 });
-                if keep {
-                    rho.push(r);
+                if let Some(k) = keep {
+                    rho.push(k(i, r));
                 }
             }
             (f, num, rho)
         })
         .collect();
     let (mut f, mut num) = (0.0, 0.0);
-    let mut rho_x: Vec<[f64; 3]> = Vec::with_capacity(if keep { n } else { 0 });
+    let mut rho_x: Vec<[f64; 3]> = Vec::with_capacity(if keep.is_some() { n } else { 0 });
     for (pf, pn, r) in parts {
         f += pf;
         num += pn;
@@ -480,9 +537,43 @@ pub fn evaluate(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, bac
 /// irradiance and the chain computed again (a line search's accepted trial, evaluated
 /// afresh where no light was re-traced).
 pub fn evaluate_from(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, fw: Forward) -> Result<Eval> {
+    if model.minlight.is_none() && bases.gathered.is_none() && chain_is_local(model, bases) {
+        evaluate_local(model, rows, bases, vis, backend, fw)
+    } else {
+        evaluate_chain(model, rows, bases, vis, backend, fw)
+    }
+}
+
+/// [`evaluate_chain`] where the chain is local and has no floor or gathered term:
+/// `rho_D = dirt albedo / pi rho_x` row by row, in the residuals' pass. There each step
+/// back is a loop over the rows and a copy; here each row's values are the same
+/// operations in the same order: the same bits (a test).
+fn evaluate_local(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, fw: Forward) -> Result<Eval> {
+    let dirt = bases.dirt_of(model);
+    let back = |i: usize, r: [f64; 3]| {
+        let mut v = [0, 1, 2].map(|c| rows.albedo[i][c] as f64 / PI * r[c]);
+        if let Some(d) = dirt {
+            v.iter_mut().for_each(|c| *c *= d[i] as f64);
+        }
+        v
+    };
+    let (f, num, rho_d) = residuals(rows, &fw, Some(&back));
+    let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
+    ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    // The ambient's, before dirt: `dirt rho_0` is rho_D itself (the same product).
+    if model.ambient.is_some() {
+        for r in &rho_d {
+            (0..3).for_each(|c| ev.ambient[c] += r[c]);
+        }
+    }
+    evaluate_rest(model, rows, bases, vis, backend, ev, rho_d)
+}
+
+/// [`evaluate_from`] step by step back along any chain.
+fn evaluate_chain(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, fw: Forward) -> Result<Eval> {
     let n = rows.len();
     // Residuals: rho_x and the objective.
-    let (f, num, rho_x) = residuals(rows, &fw, true);
+    let (f, num, rho_x) = residuals(rows, &fw, Some(&|_, r| r));
     let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
     ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
     // rho_T: through the albedo and the minlight floor. The sums (minlight, gathered) in
@@ -533,6 +624,12 @@ pub fn evaluate_from(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility
         }
     }
     let rho_d = dirt_filter_adjoint(model, bases, rho_0);
+    evaluate_rest(model, rows, bases, vis, backend, ev, rho_d)
+}
+
+/// [`evaluate_from`]'s gradients of the emitters from `rho_D = dF/dD` (the sun's, the
+/// sky's, the surfaces', the lights') into `ev`.
+fn evaluate_rest(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, backend: &mut dyn Backend, mut ev: Eval, rho_d: Vec<[f64; 3]>) -> Result<Eval> {
     if let Some(s) = &model.sun {
         ev.sun = s.gradient(rows, vis, &rho_d);
     }
@@ -585,6 +682,88 @@ mod tests {
                     }
                 }
                 assert!(got.iter().any(|x| x[0] != 0.0));
+            }
+        }
+    }
+
+    /// The local chain in one pass ([`forward_local`]) is the chain step by step
+    /// ([`forward_chain`]) to the bit: with its ambient, dirt, minlight floor and gathered
+    /// term each on and off, a held part, on one thread and on three.
+    #[test]
+    fn the_local_chain_in_one_pass_is_the_chain_step_by_step() {
+        let (_, rows) = room(6);
+        let n = rows.len();
+        let mut bases = crate::testutil::chain_bases(n, 0);
+        bases.filter = None;
+        bases.bounce = None;
+        bases.held = Some((0..n).map(|i| [0.01 * (i % 5) as f64, 0.02, 0.003 * (i % 11) as f64]).collect());
+        bases.gathered = Some((0..n).map(|i| [0.1, 0.05 * (i % 3) as f32, 0.2]).collect());
+        let direct: Vec<[f64; 3]> = (0..n).map(|i| [0.5 + 0.01 * (i % 17) as f64, 0.3 + 1e-3 * i as f64, 0.1 * (i % 7) as f64]).collect();
+        let bits = |v: &[[f64; 3]]| v.iter().flat_map(|x| x.map(f64::to_bits)).collect::<Vec<u64>>();
+        for terms in 0..16 {
+            let model = Model {
+                ambient: (terms & 1 != 0).then_some([0.01, 0.02, 0.03]),
+                dirt: (terms & 2 != 0).then_some(crate::scene::DirtSettings::Q3MAP2),
+                minlight: (terms & 4 != 0).then_some([0.4; 3]),
+                gathered: (terms & 8 != 0).then_some([0.5, 0.4, 0.3]),
+                ..Model::default()
+            };
+            assert!(chain_is_local(&model, &bases));
+            let want = forward_chain(&model, &rows, &bases, direct.clone());
+            assert_eq!(want.passes.len(), 1);
+            if terms & 4 != 0 {
+                assert!(want.total.iter().any(|t| t[1] < 0.4) && want.total.iter().any(|t| t[1] > 0.4), "the floor binds on some rows only");
+            }
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let got = pool.install(|| forward_local(&model, &rows, &bases, direct.clone()));
+                let what = format!("terms {terms:04b}, {threads} threads");
+                assert_eq!(bits(&got.direct), bits(&want.direct), "{what}: direct");
+                assert_eq!(got.passes.len(), 1, "{what}");
+                assert_eq!(bits(&got.passes[0]), bits(&want.passes[0]), "{what}: T_0");
+                assert_eq!(bits(&got.total), bits(&want.total), "{what}: total");
+                assert_eq!(bits(&got.x), bits(&want.x), "{what}: radiance");
+            }
+        }
+    }
+
+    /// The local chain's evaluation in the residuals' pass ([`evaluate_local`]) is the
+    /// step-by-step one's ([`evaluate_chain`]) to the bit, every gradient with it: with
+    /// the ambient and dirt each on and off, a sun, a sky and surfaces, on one thread and
+    /// on three.
+    #[test]
+    fn the_local_evaluation_is_the_chains() {
+        let (mesh, rows) = room(6);
+        let n = rows.len();
+        let bvh = Bvh::build(&mesh);
+        let mut bases = crate::testutil::chain_bases(n, 0);
+        bases.filter = None;
+        bases.bounce = None;
+        bases.sky = Some(crate::model::sky::SkyBasis { d: (0..n).map(|i| 0.1 + 0.01 * (i % 9) as f32).collect(), ..Default::default() });
+        let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0, 1.5, 1.0]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
+        let mut vis = Visibility::default();
+        vis.update(&lights::sources(&lights), 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
+        let sun = Sun { to_sun: Vec3::new(0.3, 0.9, -0.2).normalize(), rgb: [1.5, 1.2, 0.9] };
+        let sky_tri = vec![true; mesh.triangles.len()];
+        vis.update_sun(Some(sun.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
+        for terms in 0..4 {
+            let model = Model {
+                lights: lights.clone(),
+                sun: Some(sun),
+                sky: Some([0.3, 0.4, 0.5]),
+                ambient: (terms & 1 != 0).then_some([0.01, 0.02, 0.015]),
+                dirt: (terms & 2 != 0).then_some(crate::scene::DirtSettings::Q3MAP2),
+                ..Model::default()
+            };
+            assert!(chain_is_local(&model, &bases));
+            let mut cpu = Cpu::new(&rows, &bvh);
+            let (_, fw) = value_and_forward(&model, &rows, &bases, &vis, &mut cpu).unwrap();
+            let want = format!("{:?}", evaluate_chain(&model, &rows, &bases, &vis, &mut cpu, fw.clone()).unwrap());
+            assert!(want.contains("lights: [LightGrad"), "the lights' gradients are there: {want}");
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let got = pool.install(|| format!("{:?}", evaluate_local(&model, &rows, &bases, &vis, &mut Cpu::new(&rows, &bvh), fw.clone()).unwrap()));
+                assert_eq!(got, want, "terms {terms:02b}, {threads} threads");
             }
         }
     }
