@@ -485,8 +485,14 @@ pub fn value_and_forward(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibi
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(vis, &model.lights)? };
     let fw = forward(model, rows, bases, vis, &e);
     let (f, num, _) = residuals(rows, &fw, None);
+    Ok((eval_of(model, rows, f, num), fw))
+}
+
+/// An evaluation of `model` with the objective `f` and the error's numerator `num` from
+/// [`residuals`], its gradients still zero.
+fn eval_of(model: &Model, rows: &Rows, f: f64, num: f64) -> Eval {
     let rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
-    Ok((Eval { f, rel_error, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() }, fw))
+    Eval { f, rel_error, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() }
 }
 
 /// The objective, the error's numerator (`sum A w (x - clamp)^2`) and, with `keep`,
@@ -558,8 +564,7 @@ fn evaluate_local(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, b
         v
     };
     let (f, num, rho_d) = residuals(rows, &fw, Some(&back));
-    let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
-    ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    let mut ev = eval_of(model, rows, f, num);
     // The ambient's, before dirt: `dirt rho_0` is rho_D itself (the same product).
     if model.ambient.is_some() {
         for r in &rho_d {
@@ -574,8 +579,7 @@ fn evaluate_chain(model: &Model, rows: &Rows, bases: &Bases, vis: &Visibility, b
     let n = rows.len();
     // Residuals: rho_x and the objective.
     let (f, num, rho_x) = residuals(rows, &fw, Some(&|_, r| r));
-    let mut ev = Eval { f, surfaces: vec![[0.0; 3]; model.surfaces.len()], ..Default::default() };
-    ev.rel_error = if rows.norm2 > 0.0 { (num / rows.norm2).sqrt() } else { 0.0 };
+    let mut ev = eval_of(model, rows, f, num);
     // rho_T: through the albedo and the minlight floor. The sums (minlight, gathered) in
     // row order, on one thread; without them, a map over the rows.
     let mut rho_t = vec![[0.0f64; 3]; n];
