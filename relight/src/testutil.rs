@@ -206,3 +206,19 @@ pub fn data_from_model(rows: &mut crate::rows::Rows, bases: &crate::model::Bases
     }
     rows.finish();
 }
+
+/// q3map2's casters of `mesh`'s triangles in Quake units (glTF (x, y, z) = Quake (x, z, -y)
+/// * 0.0254), over a tree of two planes through the room: `x = a`, then `z = b` on its
+/// front side (Quake units).
+pub fn casters_of(mesh: &Mesh, a: f64, b: f64) -> crate::casters::Casters {
+    let s = 0.0254f64;
+    let mut c = crate::casters::Casters {
+        planes: vec![(glam::DVec3::X, a), (glam::DVec3::Z, b)],
+        nodes: vec![(0, [1, -1]), (1, [-2, -3])],
+        leaf_solid: vec![false; 3],
+        ..Default::default()
+    };
+    c.vertices = mesh.positions.iter().map(|p| glam::DVec3::new(p.x as f64, -p.z as f64, p.y as f64) / s).collect();
+    c.triangles = mesh.triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
+    c
+}

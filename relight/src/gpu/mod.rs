@@ -666,19 +666,11 @@ mod tests {
         let mut rows = rows;
         rows.sampling.inhibit = 0.01;
         rows.sampling.shadow_offset = 0.0;
-        // The casters in Quake units (glTF (x, y, z) = Quake (x, z, -y) * 0.0254), a tree of
-        // two planes through the room (x = 40, then z = 30 on its front side).
-        let s = 0.0254f64;
-        let mut c = crate::casters::Casters {
-            planes: vec![(glam::DVec3::X, 40.0), (glam::DVec3::Z, 30.0)],
-            nodes: vec![(0, [1, -1]), (1, [-2, -3])],
-            leaf_solid: vec![false; 3],
-            ..Default::default()
-        };
-        c.vertices = mesh.positions.iter().map(|p| glam::DVec3::new(p.x as f64, -p.z as f64, p.y as f64) / s).collect();
-        c.triangles = mesh.triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
+        // The casters in Quake units, a tree of two planes through the room (x = 40, then
+        // z = 30 on its front side).
+        let c = crate::testutil::casters_of(&mesh, 40.0, 30.0);
         let mut bvh = Bvh::build(&mesh);
-        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, s)));
+        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, 0.0254)));
         let positions: Vec<(Vec3, f32)> = vec![(Vec3::new(2.0, 1.2, 0.5), f32::INFINITY), (Vec3::new(3.1, 2.0, 2.4), f32::INFINITY), (Vec3::new(0.6, 2.2, 2.7), 2.5)];
         let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter");
         let g_bits = gpu.trace(&positions).unwrap();

@@ -33,7 +33,8 @@ use glam::Vec3;
 
 use crate::rows::Rows;
 use crate::scene::Scene;
-use crate::trace::bvh::Bvh;
+use crate::trace::bvh::{Bvh, Occluder};
+use crate::trace::visibility::ShadowRay;
 
 /// One emitting shader.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -197,6 +198,15 @@ pub fn basis(scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis 
     basis_from(patches(scene), scene, rows, bvh, fast)
 }
 
+/// What a row gets from a patch where its shadow ray to it passes: the form factor
+/// computed before the ray, or (one-sided both ways) to compute after it, from the
+/// pushed sample point.
+#[derive(Debug, Clone, Copy)]
+enum Passed {
+    FormFactor(f32),
+    FormFactorAt(Vec3),
+}
+
 /// [`basis`] of patches made beforehand: from the mesh as read, when `scene`'s mesh has
 /// been subdivided since (q3map2 cut the map's own surfaces, and a subdivided emitter's
 /// many small patches would make the cost grow with rows times patches).
@@ -218,45 +228,39 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
     // by the same wall).
     //
     // [`by_neighbour_blocks`]: crate::trace::visibility::by_neighbour_blocks
-    type Row = (Vec<(u32, f32)>, u64, crate::trace::bvh::Occluder);
+    type Row = (Vec<(u32, f32)>, u64, Occluder);
     let add = |acc: &mut Vec<(u32, f32)>, group: u32, v: f32| match acc.iter_mut().find(|(g, _)| *g == group) {
         Some(e) => e.1 += v,
         None => acc.push((group, v)),
     };
-    let pair = |i: usize, k: usize, (acc, rays, last): &mut Row, by_patch: &mut crate::trace::bvh::Occluder| {
+    // Row `i`'s shadow ray to patch `k`, where q3map2 traces one, and what the row gets
+    // where the ray passes.
+    let ray_to = |i: usize, k: usize| -> Option<(ShadowRay, Passed)> {
         let (x, n, two_sided) = (rows.pos[i], rows.normal[i], rows.two_sided[i]);
         let (p, bpf) = (&patches[k], bytes_per_ff[k]);
         // The light origin behind the sample's plane: nothing (a two-sided row looks
         // both ways).
         if !two_sided && (p.origin - x).dot(n) < 0.0 {
-            return;
+            return None;
         }
         // q3map2's tests are in whole Quake units on map geometry that sits on them:
         // compare in units, with a little slack for the rounding of meters.
         let d = p.normal.dot(x) - p.dist;
         let du = d / u;
         if du < 3.0 - 1e-3 && ((!p.two_sided && du < -1.0 - 1e-3) || (du > -3.0 + 1e-3 && n.dot(p.normal) > 0.9)) {
-            return;
+            return None;
         }
         // Upper bound of the form factor from the distance to the origin.
         let r2 = (p.origin - x).length_squared();
         if p.area / (std::f32::consts::PI * r2) * bpf < SKIP_BYTES && r2 > 4.0 * p.area {
-            return;
+            return None;
         }
         let pushed = if d > -push && d < push { x + p.normal * (push - d) } else { x };
         // One-sided both ways, without `-fast`: the ray first. Most rays are stopped
         // (oacmpdm4: 62 of 97 M), and then the form factor, which only the rays
         // that get through need, is never computed; the entries are the same.
         if !(p.two_sided || two_sided || fast) {
-            *rays += 1;
-            if !crate::trace::visibility::visible_hinted(bvh, x, n, p.origin, s, &mut [last, by_patch]) {
-                return;
-            }
-            let ff = super::area::form_factor(pushed, n, &p.verts);
-            if ff > 0.0 {
-                add(acc, p.group, std::f32::consts::PI * ff * p.weight);
-            }
-            return;
+            return Some((ShadowRay { x, n, target: p.origin }, Passed::FormFactorAt(pushed)));
         }
         let mut ff = super::area::form_factor(pushed, n, &p.verts);
         // Seen from behind a two-sided patch, or by a two-sided row from behind its own
@@ -268,18 +272,45 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
             target = p.origin - p.normal * (2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
         }
         if !(ff > 0.0) {
-            return;
+            return None;
         }
         if fast && ff * bpf <= crate::scene::q3map2::FALLOFF_TOLERANCE_BYTES {
-            return;
+            return None;
         }
-        *rays += 1;
-        if !crate::trace::visibility::visible_hinted(bvh, x, rows.facing(i, target - x), target, s, &mut [last, by_patch]) {
-            return;
-        }
-        add(acc, p.group, std::f32::consts::PI * ff * p.weight);
+        Some((ShadowRay { x, n: rows.facing(i, target - x), target }, Passed::FormFactor(ff)))
     };
-    let per_row = crate::trace::visibility::by_neighbour_blocks(rows.len(), patches.len(), |_| -> Row { (Vec::new(), 0, Default::default()) }, crate::trace::bvh::Occluder::default, pair);
+    // A block's rays to one patch, walked together (`visible_together`), each row's
+    // previous ray's occluder tried first, then the previous row's ray's to this patch.
+    let block_to_patch = |block: std::ops::Range<usize>, k: usize, states: &mut [Row]| {
+        const N: usize = crate::trace::visibility::HINT_ROWS;
+        let (mut rays, mut passed, mut own, mut at) = ([ShadowRay { x: Vec3::ZERO, n: Vec3::ZERO, target: Vec3::ZERO }; N], [Passed::FormFactor(0.0); N], [Occluder::default(); N], [0usize; N]);
+        let mut m = 0;
+        for (j, i) in block.enumerate() {
+            if let Some((ray, then)) = ray_to(i, k) {
+                (rays[m], passed[m], own[m], at[m]) = (ray, then, states[j].2, j);
+                states[j].1 += 1;
+                m += 1;
+            }
+        }
+        let mut visible = [false; N];
+        crate::trace::visibility::visible_together(bvh, &rays[..m], s, &mut own[..m], &mut Occluder::default(), &mut visible[..m]);
+        let p = &patches[k];
+        for r in 0..m {
+            let state = &mut states[at[r]];
+            state.2 = own[r];
+            if !visible[r] {
+                continue;
+            }
+            let ff = match passed[r] {
+                Passed::FormFactor(ff) => ff,
+                Passed::FormFactorAt(pushed) => super::area::form_factor(pushed, rays[r].n, &p.verts),
+            };
+            if ff > 0.0 {
+                add(&mut state.0, p.group, std::f32::consts::PI * ff * p.weight);
+            }
+        }
+    };
+    let per_row = crate::trace::visibility::by_neighbour_block_sources(rows.len(), patches.len(), |_| -> Row { (Vec::new(), 0, Default::default()) }, block_to_patch);
     let mut b = SurfaceBasis { offsets: Vec::with_capacity(rows.len() + 1), ..Default::default() };
     b.offsets.push(0);
     for (acc, rays, _) in per_row {

@@ -36,6 +36,7 @@
 //! rays from the sample itself (`rows::Sampling::shadow_offset`): oacmpdm3 0.0156,
 //! oacmpdm2 0.0053, oacmpctf1 0.0110, oacmpdm1 0.0063, oacmpdm4 0.1343.
 
+use crate::trace::wide::PACKET;
 use glam::{DVec3, Vec3};
 
 use crate::casters::{Casters, SKY};
@@ -409,6 +410,17 @@ impl Shadow {
             }
             None => false,
         }
+    }
+}
+
+impl Shadow {
+    /// [`Shadow::occluded_hinted`]'s walk for up to [`PACKET`] segments at once, no
+    /// hints (`o[r] + s d[r]`, `s` in `(t_min[r], t_max[r])`, for the rays `active`
+    /// sets; `len[r] = |d[r]|`): each ray's piece that stops it, as the walk names
+    /// pieces, `None` where none does; the same answers as one walk per ray
+    /// ([`crate::trace::wide::Wide::find_packet`]).
+    pub fn occluders_packet(&self, o: &[Vec3; PACKET], d: &[Vec3; PACKET], len: &[f32; PACKET], t_min: &[f32; PACKET], t_max: &[f32; PACKET], active: u32) -> [Option<(u32, u32)>; PACKET] {
+        self.tree.wide.find_packet(&self.tree.nodes, &self.tree.tris, o, d, t_max, active, |r, _, tri| self.hit(tri, o[r], d[r], len[r], t_min[r], t_max[r]).is_some())
     }
 }
 

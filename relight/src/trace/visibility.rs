@@ -13,6 +13,8 @@ use rayon::prelude::*;
 
 use crate::rows::{Rows, Sampling};
 use crate::trace::bvh::{Bvh, Occluder, EDGE_SLACK};
+use crate::trace::pieces::Shadow;
+use crate::trace::wide::PACKET;
 
 
 #[derive(Debug, Clone, Default)]
@@ -383,21 +385,82 @@ pub const HINT_ROWS: usize = 32;
 /// sky's bases; the answers are the walks'). Each row still sees its sources in order, so
 /// what it sums comes out bit for bit as a row-by-row loop would sum it.
 pub fn by_neighbour_blocks<S: Send, H>(n: usize, sources: usize, row: impl Fn(usize) -> S + Sync, hint: impl Fn() -> H + Sync, f: impl Fn(usize, usize, &mut S, &mut H) + Sync) -> Vec<S> {
+    by_neighbour_block_sources(n, sources, row, |rows, k, states| {
+        let mut h = hint();
+        for (i, state) in rows.zip(states.iter_mut()) {
+            f(i, k, state, &mut h);
+        }
+    })
+}
+
+/// [`by_neighbour_blocks`] handing `f` a whole block's rows for one source at a time:
+/// `f(rows, source, their states)`, sources in order; for a block's rays to one source
+/// taken together ([`visible_together`]).
+pub fn by_neighbour_block_sources<S: Send>(n: usize, sources: usize, row: impl Fn(usize) -> S + Sync, f: impl Fn(std::ops::Range<usize>, usize, &mut [S]) + Sync) -> Vec<S> {
     let blocks: Vec<Vec<S>> = (0..n.div_ceil(HINT_ROWS))
         .into_par_iter()
         .map(|b| {
             let rows = b * HINT_ROWS..((b + 1) * HINT_ROWS).min(n);
             let mut states: Vec<S> = rows.clone().map(&row).collect();
             for k in 0..sources {
-                let mut h = hint();
-                for (i, state) in rows.clone().zip(states.iter_mut()) {
-                    f(i, k, state, &mut h);
-                }
+                f(rows.clone(), k, &mut states);
             }
             states
         })
         .collect();
     blocks.into_iter().flatten().collect()
+}
+
+/// One shadow ray of [`visible_together`]: from `x` (normal `n`, turned as the caller's
+/// row faces) to `target`.
+#[derive(Debug, Clone, Copy)]
+pub struct ShadowRay {
+    pub x: Vec3,
+    pub n: Vec3,
+    pub target: Vec3,
+}
+
+/// [`visible_hinted`] for several rays in order, each trying its own hint (`own[r]`)
+/// and then `shared` (the previous ray's, handed on): `visible[r]` is ray `r`'s answer.
+/// Through q3map2's pieces the rays the hints do not stop are walked [`PACKET`] at a time
+/// ([`Shadow::occluders_packet`]); a walk's piece is remembered in the ray's hint and in
+/// `shared`, as [`visible_hinted`] remembers it. The answers are the walks'; only which
+/// piece is remembered can differ from one call per ray.
+pub fn visible_together(bvh: &Bvh, rays: &[ShadowRay], s: &Sampling, own: &mut [Occluder], shared: &mut Occluder, visible: &mut [bool]) {
+    let Some(pieces) = &bvh.shadow else {
+        for (r, ray) in rays.iter().enumerate() {
+            visible[r] = visible_hinted(bvh, ray.x, ray.n, ray.target, s, &mut [&mut own[r], shared]);
+        }
+        return;
+    };
+    let mut waiting = Waiting::default();
+    for (r, ray) in rays.iter().enumerate() {
+        match shadow_segment(ray.x, ray.n, ray.target, s) {
+            Segment::Decided(v) => visible[r] = v,
+            Segment::Ray { o, d, len, t_min, t_max } => {
+                let stops = |h: &Occluder| h.0.and_then(|(_, k)| pieces.tree.tris.get(k as usize)).is_some_and(|tri| pieces.hit(tri, o, d, len, t_min, t_max).is_some());
+                if stops(&own[r]) || stops(shared) {
+                    visible[r] = false;
+                    continue;
+                }
+                waiting.push(r, o, d, len, t_min, t_max);
+                if waiting.n == PACKET {
+                    waiting.walk(pieces, |r, hit| {
+                        visible[r] = hit.is_none();
+                        if let Some(hit) = hit {
+                            (own[r], *shared) = (Occluder(Some(hit)), Occluder(Some(hit)));
+                        }
+                    });
+                }
+            }
+        }
+    }
+    waiting.walk(pieces, |r, hit| {
+        visible[r] = hit.is_none();
+        if let Some(hit) = hit {
+            (own[r], *shared) = (Occluder(Some(hit)), Occluder(Some(hit)));
+        }
+    });
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
@@ -451,25 +514,138 @@ pub fn trace_light_hinted(bvh: &Bvh, pb: &Rows, light: Vec3, reach: f32, prior: 
     let bits = stopped
         .par_chunks_mut(32)
         .enumerate()
-        .map(|(w, stopped)| {
-            let mut word = 0u32;
-            let mut last = Occluder::default();
-            for (b, here) in stopped.iter_mut().enumerate() {
-                let i = w * 32 + b;
-                if (pb.pos[i] - light).length_squared() > reach * reach {
-                    continue;
+        .map(|(w, stopped)| match &bvh.shadow {
+            Some(pieces) => word_in_packets(pieces, pb, w, stopped, light, reach),
+            None => {
+                let mut word = 0u32;
+                let mut last = Occluder::default();
+                for (b, here) in stopped.iter_mut().enumerate() {
+                    let i = w * 32 + b;
+                    if (pb.pos[i] - light).length_squared() > reach * reach {
+                        continue;
+                    }
+                    let mut mine = Occluder::unpacked(*here);
+                    if visible_hinted(bvh, pb.pos[i], pb.facing(i, light - pb.pos[i]), light, &pb.sampling, &mut [&mut mine, &mut last]) {
+                        word |= 1 << b;
+                    } else {
+                        *here = if mine.0.is_some() { mine } else { last }.packed();
+                    }
                 }
-                let mut mine = Occluder::unpacked(*here);
-                if visible_hinted(bvh, pb.pos[i], pb.facing(i, light - pb.pos[i]), light, &pb.sampling, &mut [&mut mine, &mut last]) {
-                    word |= 1 << b;
-                } else {
-                    *here = if mine.0.is_some() { mine } else { last }.packed();
-                }
+                word
             }
-            word
         })
         .collect();
     (bits, stopped)
+}
+
+/// One word of [`trace_light_hinted`] through q3map2's pieces: each row's segment
+/// ([`shadow_segment`]) tries the row's prior and the previous row's occluder, as
+/// [`visible_hinted`] does; the rows they do not stop wait, and are walked [`PACKET`] at a
+/// time ([`Shadow::occluders_packet`]: consecutive rows towards one light cross mostly the
+/// same boxes, each loaded once for all of them). Each row's bit is its own walk's; only
+/// which piece is remembered for the next trace can differ from a walk per row.
+fn word_in_packets(pieces: &Shadow, pb: &Rows, w: usize, stopped: &mut [u64], light: Vec3, reach: f32) -> u32 {
+    let mut word = 0u32;
+    let mut last = Occluder::default();
+    let mut waiting = Waiting::default();
+    for b in 0..stopped.len() {
+        let i = w * 32 + b;
+        if (pb.pos[i] - light).length_squared() > reach * reach {
+            continue;
+        }
+        let x = pb.pos[i];
+        match shadow_segment(x, pb.facing(i, light - x), light, &pb.sampling) {
+            Segment::Decided(true) => word |= 1 << b,
+            Segment::Decided(false) => {
+                let mine = Occluder::unpacked(stopped[b]);
+                stopped[b] = if mine.0.is_some() { mine } else { last }.packed();
+            }
+            Segment::Ray { o, d, len, t_min, t_max } => {
+                let mine = Occluder::unpacked(stopped[b]);
+                let stops = |h: &Occluder| h.0.and_then(|(_, k)| pieces.tree.tris.get(k as usize)).is_some_and(|tri| pieces.hit(tri, o, d, len, t_min, t_max).is_some());
+                if stops(&mine) || stops(&last) {
+                    stopped[b] = if mine.0.is_some() { mine } else { last }.packed();
+                    continue;
+                }
+                waiting.push(b, o, d, len, t_min, t_max);
+                if waiting.n == PACKET {
+                    waiting.walk(pieces, |b, hit| remember(b, hit, &mut word, &mut last, stopped));
+                }
+            }
+        }
+    }
+    waiting.walk(pieces, |b, hit| remember(b, hit, &mut word, &mut last, stopped));
+    word
+}
+
+/// A walked row's answer in [`word_in_packets`]: its bit where nothing stops it, else the
+/// piece remembered as the row's and as the previous row's (`last`).
+fn remember(b: usize, hit: Option<(u32, u32)>, word: &mut u32, last: &mut Occluder, stopped: &mut [u64]) {
+    match hit {
+        Some(hit) => {
+            *last = Occluder(Some(hit));
+            stopped[b] = last.packed();
+        }
+        None => *word |= 1 << b,
+    }
+}
+
+/// Segments waiting for [`Shadow::occluders_packet`]: `n` of them, each with its
+/// caller's index.
+#[derive(Default)]
+struct Waiting {
+    n: usize,
+    index: [usize; PACKET],
+    o: [Vec3; PACKET],
+    d: [Vec3; PACKET],
+    len: [f32; PACKET],
+    t_min: [f32; PACKET],
+    t_max: [f32; PACKET],
+}
+
+impl Waiting {
+    fn push(&mut self, index: usize, o: Vec3, d: Vec3, len: f32, t_min: f32, t_max: f32) {
+        let r = self.n;
+        (self.index[r], self.o[r], self.d[r], self.len[r], self.t_min[r], self.t_max[r]) = (index, o, d, len, t_min, t_max);
+        self.n += 1;
+    }
+
+    /// Walks the waiting segments together and tells `answer(index, occluder)` each one's
+    /// piece (`None`: nothing stops it), in the order they came. None wait after.
+    fn walk(&mut self, pieces: &Shadow, mut answer: impl FnMut(usize, Option<(u32, u32)>)) {
+        if self.n == 0 {
+            return;
+        }
+        let found = pieces.occluders_packet(&self.o, &self.d, &self.len, &self.t_min, &self.t_max, (1u32 << self.n) - 1);
+        for (r, &index) in self.index[..self.n].iter().enumerate() {
+            answer(index, found[r]);
+        }
+        self.n = 0;
+    }
+}
+
+/// A shadow ray as [`visible_hinted`] sets it up: decided without a walk, or the segment
+/// `o + s d`, `s` in `(t_min, t_max)` (`len = |d|`) that geometry must not cross.
+enum Segment {
+    Decided(bool),
+    Ray { o: Vec3, d: Vec3, len: f32, t_min: f32, t_max: f32 },
+}
+
+/// [`visible_hinted`]'s segment from `x` (normal `n`) to `light`.
+#[inline]
+fn shadow_segment(x: Vec3, n: Vec3, light: Vec3, s: &Sampling) -> Segment {
+    let (offset, inhibit, end) = (s.shadow_offset, s.inhibit, s.ray_offset);
+    if n.dot(light - x) <= 0.0 {
+        return Segment::Decided(false);
+    }
+    let o = x + n * offset;
+    let d = light - o;
+    let len = d.length();
+    if !(len > offset.max(inhibit)) {
+        // The light touches the surface: lit, nothing can be in between.
+        return Segment::Decided(len.is_finite());
+    }
+    Segment::Ray { o, d, len, t_min: inhibit / len, t_max: 1.0 - end / len }
 }
 
 /// The occluders of recent light traces by light position ([`trace_light_hinted`]): a
@@ -528,21 +704,14 @@ pub fn visible_after(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, las
 pub fn visible_hinted(bvh: &Bvh, x: Vec3, n: Vec3, light: Vec3, s: &Sampling, hints: &mut [&mut Occluder]) -> bool {
     // Geometry within `end` of the light does not shadow it (a light on a face: q3map2's
     // f32 depth of that face decides it ray by ray, a pattern no model reproduces).
-    let (offset, inhibit, end) = (s.shadow_offset, s.inhibit, s.ray_offset);
-    if n.dot(light - x) <= 0.0 {
-        return false;
-    }
-    let o = x + n * offset;
-    let d = light - o;
-    let len = d.length();
-    if !(len > offset.max(inhibit)) {
-        // The light touches the surface: lit, nothing can be in between.
-        return len.is_finite();
-    }
+    let (o, d, t_min, t_max) = match shadow_segment(x, n, light, s) {
+        Segment::Decided(v) => return v,
+        Segment::Ray { o, d, t_min, t_max, .. } => (o, d, t_min, t_max),
+    };
     if let Some(pieces) = &bvh.shadow {
-        return !pieces.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints);
+        return !pieces.occluded_hinted(o, d, t_min, t_max, hints);
     }
-    !bvh.occluded_hinted(o, d, inhibit / len, 1.0 - end / len, hints)
+    !bvh.occluded_hinted(o, d, t_min, t_max, hints)
 }
 
 #[cfg(test)]
@@ -626,6 +795,46 @@ mod tests {
                 assert_eq!((*row, seen.clone()), (i, (0..sources).collect::<Vec<_>>()));
             }
         }
+    }
+
+    /// Through q3map2's pieces a word's rows are walked several at a time
+    /// (`word_in_packets`): every bit is what one ray's own walk gives (`visible_from`),
+    /// with no prior, with a prior from a trace nearby and with nonsense for one; and each
+    /// occluder it hands on stops its row's ray.
+    #[test]
+    fn rows_walked_together_get_each_rows_own_bit() {
+        let (mut mesh, mut rows) = crate::testutil::room(8);
+        crate::testutil::scatter_quads(&mut mesh, 300);
+        rows.sampling.inhibit = 0.01;
+        // The casters in Quake units, a tree of two planes through the room.
+        let c = crate::testutil::casters_of(&mesh, 60.0, 40.0);
+        let mut bvh = Bvh::build(&mesh);
+        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, 0.0254)));
+        let (mut lit, mut blocked) = (0, 0);
+        for k in 0..12u32 {
+            let p = Vec3::new(0.2 + 3.6 * hash01(k, 31), 0.2 + 2.6 * hash01(k, 32), 0.2 + 3.6 * hash01(k, 33));
+            let reach = if k % 3 == 0 { 2.5 } else { f32::INFINITY };
+            let reference: Vec<bool> = (0..rows.len()).map(|i| (rows.pos[i] - p).length_squared() <= reach * reach && visible_from(&bvh, rows.pos[i], rows.facing(i, p - rows.pos[i]), p, &rows.sampling)).collect();
+            let bit = |bits: &[u32], i: usize| bits[i >> 5] >> (i & 31) & 1 == 1;
+            let (bits, first) = trace_light_hinted(&bvh, &rows, p, reach, None);
+            for i in 0..rows.len() {
+                assert_eq!(bit(&bits, i), reference[i], "light {k}, row {i}");
+                if !reference[i] && first[i] != u64::MAX {
+                    let mut only = Occluder::unpacked(first[i]);
+                    assert!(!visible_hinted(&bvh, rows.pos[i], rows.facing(i, p - rows.pos[i]), p, &rows.sampling, &mut [&mut only]), "light {k}, row {i}: its occluder");
+                }
+                lit += reference[i] as usize;
+                blocked += (!reference[i] && (rows.pos[i] - p).length_squared() <= reach * reach && rows.normal[i].dot(p - rows.pos[i]) > 0.0) as usize;
+            }
+            let q = p + Vec3::new(0.03, -0.02, 0.01);
+            let moved: Vec<bool> = (0..rows.len()).map(|i| (rows.pos[i] - q).length_squared() <= reach * reach && visible_from(&bvh, rows.pos[i], rows.facing(i, q - rows.pos[i]), q, &rows.sampling)).collect();
+            let junk: Vec<u64> = (0..rows.len() as u32).map(|i| Occluder(Some((i % 7, i.wrapping_mul(2654435761) % 9000))).packed()).collect();
+            for prior in [&first, &junk] {
+                let (again, _) = trace_light_hinted(&bvh, &rows, q, reach, Some(prior));
+                assert!((0..rows.len()).all(|i| bit(&again, i) == moved[i]), "light {k}, moved, with a prior");
+            }
+        }
+        assert!(lit > 1000 && blocked > 1000, "both answers exercised: {lit} lit, {blocked} blocked");
     }
 
     /// A light traced with the occluders of a trace nearby, or with nonsense for them,
