@@ -396,12 +396,8 @@ impl Shadow {
     /// order; a walk's piece is remembered in each): the same answer.
     pub fn occluded_hinted(&self, o: Vec3, d: Vec3, t_min: f32, t_max: f32, hints: &mut [&mut Occluder]) -> bool {
         let len = d.length();
-        for h in hints.iter() {
-            if let Some(tri) = h.0.and_then(|(_, k)| self.tree.tris.get(k as usize)) {
-                if self.hit(tri, o, d, len, t_min, t_max).is_some() {
-                    return true;
-                }
-            }
+        if hints.iter().any(|h| self.remembered_stops(h, o, d, len, t_min, t_max)) {
+            return true;
         }
         match self.tree.find_leaf_tri(o, d, t_max, |_, tri| self.hit(tri, o, d, len, t_min, t_max).is_some()) {
             Some(hit) => {
@@ -414,6 +410,13 @@ impl Shadow {
 }
 
 impl Shadow {
+    /// Whether the remembered piece `h` stops the segment (`len = |d|`): any piece that
+    /// does answers, and the walk would have reached it (its box holds its slack).
+    #[inline]
+    pub fn remembered_stops(&self, h: &Occluder, o: Vec3, d: Vec3, len: f32, t_min: f32, t_max: f32) -> bool {
+        h.0.and_then(|(_, k)| self.tree.tris.get(k as usize)).is_some_and(|tri| self.hit(tri, o, d, len, t_min, t_max).is_some())
+    }
+
     /// [`Shadow::occluded_hinted`]'s walk for up to [`PACKET`] segments at once, no
     /// hints (`o[r] + s d[r]`, `s` in `(t_min[r], t_max[r])`, for the rays `active`
     /// sets; `len[r] = |d[r]|`): each ray's piece that stops it, as the walk names

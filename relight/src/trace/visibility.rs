@@ -438,29 +438,27 @@ pub fn visible_together(bvh: &Bvh, rays: &[ShadowRay], s: &Sampling, own: &mut [
         match shadow_segment(ray.x, ray.n, ray.target, s) {
             Segment::Decided(v) => visible[r] = v,
             Segment::Ray { o, d, len, t_min, t_max } => {
-                let stops = |h: &Occluder| h.0.and_then(|(_, k)| pieces.tree.tris.get(k as usize)).is_some_and(|tri| pieces.hit(tri, o, d, len, t_min, t_max).is_some());
-                if stops(&own[r]) || stops(shared) {
+                if [&own[r], &*shared].into_iter().any(|h| pieces.remembered_stops(h, o, d, len, t_min, t_max)) {
                     visible[r] = false;
                     continue;
                 }
                 waiting.push(r, o, d, len, t_min, t_max);
                 if waiting.n == PACKET {
-                    waiting.walk(pieces, |r, hit| {
-                        visible[r] = hit.is_none();
-                        if let Some(hit) = hit {
-                            (own[r], *shared) = (Occluder(Some(hit)), Occluder(Some(hit)));
-                        }
-                    });
+                    waiting.walk(pieces, |r, hit| answered(r, hit, visible, own, shared));
                 }
             }
         }
     }
-    waiting.walk(pieces, |r, hit| {
-        visible[r] = hit.is_none();
-        if let Some(hit) = hit {
-            (own[r], *shared) = (Occluder(Some(hit)), Occluder(Some(hit)));
-        }
-    });
+    waiting.walk(pieces, |r, hit| answered(r, hit, visible, own, shared));
+}
+
+/// A walked ray's answer in [`visible_together`]: visible where nothing stops it, else the
+/// piece remembered as the ray's and as the next ray's (`shared`).
+fn answered(r: usize, hit: Option<(u32, u32)>, visible: &mut [bool], own: &mut [Occluder], shared: &mut Occluder) {
+    visible[r] = hit.is_none();
+    if let Some(hit) = hit {
+        (own[r], *shared) = (Occluder(Some(hit)), Occluder(Some(hit)));
+    }
 }
 
 /// Sun visibility bits of every problem row (rayon, 32 per task).
@@ -562,8 +560,7 @@ fn word_in_packets(pieces: &Shadow, pb: &Rows, w: usize, stopped: &mut [u64], li
             }
             Segment::Ray { o, d, len, t_min, t_max } => {
                 let mine = Occluder::unpacked(stopped[b]);
-                let stops = |h: &Occluder| h.0.and_then(|(_, k)| pieces.tree.tris.get(k as usize)).is_some_and(|tri| pieces.hit(tri, o, d, len, t_min, t_max).is_some());
-                if stops(&mine) || stops(&last) {
+                if [&mine, &last].into_iter().any(|h| pieces.remembered_stops(h, o, d, len, t_min, t_max)) {
                     stopped[b] = if mine.0.is_some() { mine } else { last }.packed();
                     continue;
                 }
