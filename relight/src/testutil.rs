@@ -208,10 +208,10 @@ pub fn data_from_model(rows: &mut crate::rows::Rows, bases: &crate::model::Bases
 }
 
 /// q3map2's casters of `mesh`'s triangles in Quake units (glTF (x, y, z) = Quake (x, z, -y)
-/// * 0.0254), over a tree of two planes through the room: `x = a`, then `z = b` on its
-/// front side (Quake units).
+/// * [`DEFAULT_SCALE`](q3gltf_convert::units::DEFAULT_SCALE)), over a tree of two planes
+/// through the room: `x = a`, then `z = b` on its front side (Quake units).
 pub fn casters_of(mesh: &Mesh, a: f64, b: f64) -> crate::casters::Casters {
-    let s = 0.0254f64;
+    let s = q3gltf_convert::units::DEFAULT_SCALE;
     let mut c = crate::casters::Casters {
         planes: vec![(glam::DVec3::X, a), (glam::DVec3::Z, b)],
         nodes: vec![(0, [1, -1]), (1, [-2, -3])],

@@ -670,7 +670,7 @@ mod tests {
         // z = 30 on its front side).
         let c = crate::testutil::casters_of(&mesh, 40.0, 30.0);
         let mut bvh = Bvh::build(&mesh);
-        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, 0.0254)));
+        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, q3gltf_convert::units::DEFAULT_SCALE)));
         let positions: Vec<(Vec3, f32)> = vec![(Vec3::new(2.0, 1.2, 0.5), f32::INFINITY), (Vec3::new(3.1, 2.0, 2.4), f32::INFINITY), (Vec3::new(0.6, 2.2, 2.7), 2.5)];
         let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter");
         let g_bits = gpu.trace(&positions).unwrap();

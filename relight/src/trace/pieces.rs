@@ -36,12 +36,12 @@
 //! rays from the sample itself (`rows::Sampling::shadow_offset`): oacmpdm3 0.0156,
 //! oacmpdm2 0.0053, oacmpctf1 0.0110, oacmpdm1 0.0063, oacmpdm4 0.1343.
 
-use crate::trace::wide::PACKET;
 use glam::{DVec3, Vec3};
 
 use crate::casters::{Casters, SKY};
 use crate::scene::Mesh;
 use crate::trace::tree::{Occluder, Tree, Tri};
+use crate::trace::wide::PACKET;
 
 /// A vertex this close to a plane (Quake units) is on it when a winding is clipped.
 const TW_ON_EPSILON: f64 = 0.25;
@@ -407,9 +407,7 @@ impl Shadow {
             None => false,
         }
     }
-}
 
-impl Shadow {
     /// Whether the remembered piece `h` stops the segment (`len = |d|`): any piece that
     /// does answers, and the walk would have reached it (its box holds its slack).
     #[inline]

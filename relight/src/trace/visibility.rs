@@ -806,7 +806,7 @@ mod tests {
         // The casters in Quake units, a tree of two planes through the room.
         let c = crate::testutil::casters_of(&mesh, 60.0, 40.0);
         let mut bvh = Bvh::build(&mesh);
-        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, 0.0254)));
+        bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, q3gltf_convert::units::DEFAULT_SCALE)));
         let (mut lit, mut blocked) = (0, 0);
         for k in 0..12u32 {
             let p = Vec3::new(0.2 + 3.6 * hash01(k, 31), 0.2 + 2.6 * hash01(k, 32), 0.2 + 3.6 * hash01(k, 33));

@@ -110,16 +110,21 @@ impl Node4 {
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            let c = self.crossed(o, inv, t_max);
-            (0..4).filter(|&l| c[l]).fold(0, |m, l| m | 1 << l)
+            lane_mask(self.crossed(o, inv, t_max))
         }
     }
 
     /// The lanes that hold a child, as a mask.
     #[inline(always)]
     fn live(&self) -> u32 {
-        (0..4).filter(|&l| self.child[l] != EMPTY).fold(0, |m, l| m | 1 << l)
+        lane_mask(self.child.map(|c| c != EMPTY))
     }
+}
+
+/// Four lanes' answers as a mask (bit `l`: lane `l`).
+#[inline(always)]
+fn lane_mask(lanes: [bool; 4]) -> u32 {
+    (0..4).filter(|&l| lanes[l]).fold(0, |m, l| m | 1 << l)
 }
 
 /// The first triangle of binary leaf `leaf` that `hit` takes (given its index into
@@ -338,8 +343,7 @@ impl Wide {
                 let crossed = if finite >> r & 1 == 1 {
                     n.crossed_finite(o[r], inv[r], t_max[r])
                 } else {
-                    let c = n.crossed(o[r], inv[r], t_max[r]);
-                    (0..4).filter(|&l| c[l]).fold(0, |m, l| m | 1 << l)
+                    lane_mask(n.crossed(o[r], inv[r], t_max[r]))
                 };
                 for l in 0..4 {
                     lanes[l] |= (crossed >> l & 1) << r;
@@ -596,7 +600,7 @@ mod tests {
             let t_max = [0.0, 0.5, 1.0, 1e30, f32::INFINITY, f32::NAN][k as usize % 6];
             let fast = node.crossed_finite(o, inv, t_max);
             let guarded = node.crossed(o, inv, t_max);
-            assert_eq!(fast, (0..4).filter(|&l| guarded[l]).fold(0, |m, l| m | 1 << l), "segment {k}");
+            assert_eq!(fast, lane_mask(guarded), "segment {k}");
             same += 1;
             crossed += fast.count_ones() as usize;
         }
