@@ -1,6 +1,6 @@
 // Visibility bits: one invocation per (row, light of the batch).
-// Needs bvh.wgsl and rows.wgsl prepended. Bit i of word light*words + i/32 is set when
-// the light is in front of vertex i and the shadow ray reaches it.
+// Needs rows.wgsl, bvh.wgsl and shadow.wgsl prepended. Bit i of word light*words + i/32
+// is set when the light is in front of vertex i and the shadow ray reaches it.
 
 struct TraceParams {
     n: u32,
@@ -17,16 +17,6 @@ struct TraceParams {
     end_margin: f32,
 }
 
-// The half-space of a trace node's parent plane on the node's side (inside: n . x - d >=
-// -leaf_eps) and the parent (NO_PARENT at the root).
-struct Bound {
-    plane: vec4<f32>,
-    parent: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-}
-
 @group(0) @binding(0) var<uniform> tp: TraceParams;
 @group(0) @binding(1) var<storage, read> verts: array<Row>;
 @group(0) @binding(2) var<storage, read> nodes: array<Node>;
@@ -34,119 +24,6 @@ struct Bound {
 @group(0) @binding(4) var<storage, read> light_pos: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> bits: array<atomic<u32>>;
 @group(0) @binding(6) var<storage, read> bounds: array<Bound>;
-
-const NO_PARENT: u32 = 0xffffffffu;
-
-// Whether the segment o + s d, s in (t_min, t_max), passes through the leaf of trace node
-// `leaf` (relight/src/trace/pieces.rs `Shadow::passes_leaf` is the reference).
-fn passes_leaf(leaf0: u32, o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
-    var leaf = leaf0;
-    var lo = t_min;
-    var hi = t_max;
-    var guard = 0u;
-    loop {
-        if (leaf >= arrayLength(&bounds) || guard >= 4096u) {
-            break;
-        }
-        let b = bounds[leaf];
-        if (b.parent == NO_PARENT) {
-            break;
-        }
-        let a = dot(b.plane.xyz, o) - b.plane.w + tp.leaf_eps;
-        let s = dot(b.plane.xyz, d);
-        if (s > 0.0) {
-            lo = max(lo, -a / s);
-        } else if (s < 0.0) {
-            hi = min(hi, -a / s);
-        } else if (a < 0.0) {
-            return false;
-        }
-        if (!(lo <= hi)) {
-            return false;
-        }
-        leaf = b.parent;
-        guard = guard + 1u;
-    }
-    return true;
-}
-
-// q3map2's test of one piece (`Shadow::hit`): slack and coplanar threshold from the
-// triangle, a hit in the slack band only through the piece's leaf.
-fn hits_piece(tri: Tri, o: vec3<f32>, d: vec3<f32>, len: f32, t_min: f32, t_max: f32) -> bool {
-    let p = cross(d, tri.e2);
-    let det = dot(tri.e1, p);
-    if (!(abs(det) >= tri.coplanar * len) || det == 0.0) {
-        return false;
-    }
-    let inv = 1.0 / det;
-    let s = o - tri.v0;
-    let u = dot(s, p) * inv;
-    if (u < -tri.slack || u > 1.0 + tri.slack) {
-        return false;
-    }
-    let q = cross(s, tri.e1);
-    let v = dot(d, q) * inv;
-    if (v < -tri.slack || u + v > 1.0 + tri.slack) {
-        return false;
-    }
-    let t = dot(tri.e2, q) * inv;
-    if (!(t > t_min && t < t_max)) {
-        return false;
-    }
-    if (u < 0.0 || v < 0.0 || u + v > 1.0) {
-        return passes_leaf(tri.leaf, o, d, t_min, t_max);
-    }
-    return true;
-}
-
-// The shadow walk over q3map2's pieces (`Shadow::occluded`).
-fn occluded_pieces(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
-    if (arrayLength(&tris) == 0u) {
-        return false;
-    }
-    let inv = 1.0 / d;
-    let len = length(d);
-    var stack: array<u32, 48>;
-    var sp = 1u;
-    stack[0] = 0u;
-    while (sp > 0u) {
-        sp = sp - 1u;
-        let here = stack[sp];
-        let node = nodes[here];
-        if (!slab_shadow(node, o, inv, t_max)) {
-            continue;
-        }
-        if (node.count > 0u) {
-            for (var k = 0u; k < node.count; k = k + 1u) {
-                if (hits_piece(tris[node.right_or_first + k], o, d, len, t_min, t_max)) {
-                    return true;
-                }
-            }
-        } else if (sp + 2u <= MAX_DEPTH) {
-            stack[sp] = node.right_or_first;
-            stack[sp + 1u] = here + 1u;
-            sp = sp + 2u;
-        }
-    }
-    return false;
-}
-
-// relight/src/visibility.rs visible_from is the reference.
-fn visible_from(x: vec3<f32>, n: vec3<f32>, light: vec3<f32>, offset: f32, inhibit: f32) -> bool {
-    if (dot(n, light - x) <= 0.0) {
-        return false;
-    }
-    let o = x + n * offset;
-    let d = light - o;
-    let len = length(d);
-    if (!(len > max(offset, inhibit))) {
-        return true;
-    }
-    if (tp.pieces != 0u) {
-        return !occluded_pieces(o, d, inhibit / len, 1.0 - tp.end_margin / len);
-    }
-    return !occluded(o, d, inhibit / len, 1.0 - tp.end_margin / len);
-}
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -158,7 +35,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = verts[i];
     // light_pos[j].w: the reach; farther rows get no bit (relight/src/trace/visibility.rs).
     let d = v.pos - light_pos[j].xyz;
-    if (dot(d, d) <= light_pos[j].w * light_pos[j].w && visible_from(v.pos, facing(v, light_pos[j].xyz - v.pos), light_pos[j].xyz, tp.ray_offset, tp.inhibit)) {
+    if (dot(d, d) <= light_pos[j].w * light_pos[j].w && visible_from(v.pos, facing(v, light_pos[j].xyz - v.pos), light_pos[j].xyz, ShadowWalk(tp.ray_offset, tp.inhibit, tp.end_margin, tp.leaf_eps, tp.pieces))) {
         atomicOr(&bits[j * tp.words + (i >> 5u)], 1u << (i & 31u));
     }
 }

@@ -2,12 +2,14 @@
 //! ([`crate::gpu`]). Both hold the rows and the BVH, uploaded or borrowed once. A backend
 //! traces shadow rays and evaluates the point and spot lights ([`crate::model::lights`]),
 //! the one part of the model whose cost grows with lights x rows; the rest of the model
-//! runs on the CPU in f64 ([`crate::model`]).
+//! runs on the CPU in f64 ([`crate::model`]), except the surface lights' basis, which a
+//! backend with a kernel for it builds ([`Backend::surface_sums`]).
 
 use glam::Vec3;
 
 use crate::error::Result;
 use crate::model::lights::{self, Light, LightGrad};
+use crate::model::surface;
 use crate::rows::Rows;
 use crate::trace::bvh::Bvh;
 use crate::trace::visibility::{self, Visibility};
@@ -24,6 +26,12 @@ pub trait Backend {
     /// Rays the backend traced itself, where it does not use the visibility cache (the
     /// light-tracing estimator, [`crate::light_tracing`]).
     fn rays_traced(&self) -> Option<u64> {
+        None
+    }
+    /// The surface lights' basis sums where the backend has a kernel for them (wgpu:
+    /// `shaders/surface_lights.wgsl`); `None`: the CPU reference,
+    /// [`crate::model::surface::basis_from`], builds the basis.
+    fn surface_sums(&mut self, _request: &surface::Request) -> Option<Result<surface::Sums>> {
         None
     }
 }

@@ -651,15 +651,17 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
 
 /// Traces what the model needs of the geometry for the terms `plan` considers; `st`
 /// records each one's time.
-/// `emitters`: the surface lights' patches, made before any subdivision.
-fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::surface::Patch>), rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, st: &mut Stages) -> Bases {
+/// `emitters`: the surface lights' patches, made before any subdivision. `backend`: the
+/// run's, which builds the surface lights' basis where it has a kernel for it.
+#[allow(clippy::too_many_arguments)]
+fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::surface::Patch>), rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, backend: &mut dyn Backend, st: &mut Stages) -> Result<Bases> {
     let sky_triangles: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
     let sky = (plan.sky != Optional::Off).then(|| {
         let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
         model::sky::basis(rows, bvh, &sky_triangles, &model::sky::directions(it))
     });
     st.done("bases: sky");
-    let surfaces = if plan.surfaces != Optional::Off { model::surface::basis_from(emitters, scene, rows, bvh, plan.fast_area) } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
+    let surfaces = if plan.surfaces != Optional::Off { surface_basis(backend, emitters, scene, rows, bvh, plan.fast_area)? } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
     st.done("bases: surfaces");
     let luxels = rows.texel.iter().any(|t| t[0] != u32::MAX);
     let nb = if luxels && (plan.dirt != Optional::Off || plan.filter != Optional::Off) { model::compile::neighbours(rows) } else { vec![Vec::new(); rows.len()] };
@@ -678,7 +680,20 @@ fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::
     let bounce_reflectance = if bounce.is_some() { model::bounce::reflectance(rows) } else { Vec::new() };
     let gathered = bounce.as_ref().filter(|_| with_gathered).map(|t| crate::gather::through(rows, t, &bounce_reflectance));
     st.done("bases: gathered");
-    Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounce_stats, bounces: plan.bounces, gathered, sky_triangles, held: None }
+    Ok(Bases { sky, surfaces, dirt, filter, bounce, bounce_reflectance, bounce_stats, bounces: plan.bounces, gathered, sky_triangles, held: None })
+}
+
+/// The surface lights' basis on `backend` where it has a kernel for it, else the CPU's.
+fn surface_basis(backend: &mut dyn Backend, emitters: (Vec<model::surface::Group>, Vec<model::surface::Patch>), scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> Result<model::surface::SurfaceBasis> {
+    let bytes_per_ff = model::surface::bytes_per_form_factor(scene, &emitters.0, &emitters.1);
+    let request = model::surface::Request { patches: &emitters.1, bytes_per_ff: &bytes_per_ff, groups: emitters.0.len(), units_m: scene.units_m, fast };
+    match backend.surface_sums(&request) {
+        Some(sums) => {
+            let sums = sums?;
+            Ok(model::surface::basis_from_sums(emitters, &sums, rows.len()))
+        }
+        None => Ok(model::surface::basis_from(emitters, scene, rows, bvh, fast)),
+    }
 }
 
 /// The map's own emitters as the file declares them: the sun (from its directional
@@ -721,8 +736,8 @@ pub fn render(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize) 
     render_on(scene, model, bounces, bounce_rays, BackendChoice::Cpu)
 }
 
-/// [`render`] with the shadow rays and the point and spot lights on the chosen backend
-/// (the rest of the model runs on the CPU in f64 either way).
+/// [`render`] with the shadow rays, the point and spot lights and the surface lights' basis
+/// on the chosen backend (the rest of the model runs on the CPU in f64 either way).
 pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usize, choice: BackendChoice) -> Result<Rendered> {
     let bvh = Bvh::occluders(scene);
     let rows = luxel_rows(scene, &projection::Target::empty(scene.mesh.positions.len()), &bvh).rows;
@@ -739,12 +754,12 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
         fast_bounce: false,
     };
     let mut st = Stages { t: Instant::now(), list: Vec::new() };
-    let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, &mut st);
     let (device, _) = choose_backend(choice)?;
     let mut backend: Box<dyn Backend + '_> = match device {
         Plan::Cpu => Box::new(Cpu::new(&rows, &bvh)),
         Plan::Wgpu(ctx) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
     };
+    let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, backend.as_mut(), &mut st)?;
     let mut vis = crate::trace::visibility::Visibility::default();
     vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &bases.sky_triangles));
     vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| backend.trace(p))?;
@@ -862,8 +877,6 @@ fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         terms = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Off, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, dirt_sets: Vec::new(), filter: Optional::Off, fast_area: false, fast_bounce: false };
         compile_note = "--estimator tracing: point lights and their traced bounces only (the thesis's model)".into();
     }
-    let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, matches!(opts.init, Init::Auto | Init::Greedy), &mut st);
-
     let mut backend: Box<dyn Backend + '_> = match (plan, tracing) {
         (Plan::Cpu, None) => Box::new(Cpu::new(&rows, &bvh)),
         (Plan::Wgpu(ctx), None) => Box::new(crate::gpu::GpuBackend::new(ctx, &rows, &bvh)?),
@@ -872,6 +885,7 @@ fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     };
     let backend_name = backend.name();
     st.done("upload");
+    let bases = build_bases(&scene, emitters, &rows, &bvh, &terms, opts.bounce_rays, matches!(opts.init, Init::Auto | Init::Greedy), backend.as_mut(), &mut st)?;
 
     // The map's own emitters, then the switches the recorded compile fixes.
     progress.stage("init");

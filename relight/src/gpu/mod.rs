@@ -4,9 +4,10 @@
 //! visibility of lights re-traced since the last call and run
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
-//! f64). The target projection's kernel is `shaders/target.wgsl`; the light-tracing
-//! estimator's is `shaders/light_tracing.wgsl` ([`TracingGpu`]). Pipelines are built in one
-//! place, [`Pipelines`].
+//! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]); every
+//! shadow ray walks `shaders/shadow.wgsl`. The target projection's kernel is
+//! `shaders/target.wgsl`; the light-tracing estimator's is `shaders/light_tracing.wgsl`
+//! ([`TracingGpu`]). Pipelines are built in one place, [`Pipelines`].
 
 use glam::Vec3;
 use wgpu::util::DeviceExt;
@@ -20,6 +21,7 @@ use crate::rows::projection::{self as target, CORNER_FLOATS};
 use crate::rows::Rows;
 use crate::trace::visibility::Visibility;
 
+mod surface;
 mod tracing;
 pub use tracing::TracingGpu;
 
@@ -255,7 +257,7 @@ struct TraceParams {
     end_margin: f32,
 }
 
-/// `Bound` of `shaders/trace.wgsl`: a trace node's half-space and parent.
+/// `Bound` of `shaders/shadow.wgsl`: a trace node's half-space and parent.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct GpuBound {
@@ -290,12 +292,15 @@ struct Pipelines {
     /// The light-tracing estimator's two entry points ([`tracing`]), one layout.
     tracing_irradiance: wgpu::ComputePipeline,
     tracing_gradient: wgpu::ComputePipeline,
+    /// The surface lights' basis ([`surface`]).
+    surface: wgpu::ComputePipeline,
 }
 
 impl Pipelines {
     fn new(device: &wgpu::Device) -> Pipelines {
         let rows = include_str!("../../../shaders/rows.wgsl");
         let bvh = include_str!("../../../shaders/bvh.wgsl");
+        let shadow = include_str!("../../../shaders/shadow.wgsl");
         let lights = include_str!("../../../shaders/lights.wgsl");
         let make = |label: &str, src: String, entry: &str, layout: Option<&wgpu::PipelineLayout>| {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(src.into()) });
@@ -328,7 +333,8 @@ impl Pipelines {
             tracing_irradiance: make("light tracing irradiance", tracing_src.clone(), "irradiance", Some(&tracing_layout)),
             tracing_gradient: make("light tracing gradient", tracing_src, "gradient", Some(&tracing_layout)),
             target: make("target", include_str!("../../../shaders/target.wgsl").to_string(), "main", None),
-            trace: make("trace", format!("{rows}\n{bvh}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
+            trace: make("trace", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
+            surface: make("surface lights", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/surface_lights.wgsl")), "main", None),
             irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
             gradient: make("light gradient", gradient_src.clone(), "main", Some(&gradient_layout)),
             reduce: make("light gradient blocks", gradient_src, "reduce_blocks", Some(&gradient_layout)),
@@ -590,6 +596,9 @@ impl Backend for GpuBackend {
     fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
         self.try_gradient(vis, lights, rho)
     }
+    fn surface_sums(&mut self, request: &crate::model::surface::Request) -> Option<Result<crate::model::surface::Sums>> {
+        Some(self.try_surface_sums(request))
+    }
 }
 
 #[cfg(test)]
@@ -677,6 +686,80 @@ mod tests {
         let c_bits: Vec<Vec<u32>> = positions.iter().map(|&(p, r)| crate::trace::visibility::trace_light(&bvh, &rows, p, r)).collect();
         assert_eq!(g_bits, c_bits, "visibility bits differ");
         assert!(c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>() > 0, "the pillar casts a shadow");
+    }
+
+    /// The device builds the surface lights' basis as the CPU does: the same rays (but at
+    /// `-fast`'s cut), and every row's sum per group within 1e-4 of the largest, the
+    /// patches in several dispatches, through the mesh's tree and
+    /// q3map2's pieces, with and without `-fast`. The room holds a two-sided emitter (a
+    /// flame, lighting both sides), a one-sided ceiling panel with its backsplash, and a
+    /// pillar that shadows both; a third of the rows are two-sided.
+    #[test]
+    fn wgpu_builds_the_surface_lights_basis_as_the_cpu_does() {
+        use crate::model::surface as model;
+        use crate::scene::{Emitter, Material};
+        let (mut mesh, mut rows) = room(10);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.0, 1.3], [1.8, 2.0, 1.3]], Vec3::Z);
+        let mut emitting = |mesh: &mut crate::scene::Mesh, corners: [[f32; 3]; 4], normal: Vec3, m: u32| {
+            crate::testutil::push_quad(mesh, corners, normal);
+            let t = mesh.tri_material.len();
+            mesh.tri_material[t - 2..].iter_mut().for_each(|x| *x = m);
+        };
+        emitting(&mut mesh, [[2.0, 0.75, 0.4], [2.0, 1.75, 0.4], [2.0, 1.75, 1.0], [2.0, 0.75, 1.0]], Vec3::X, 1);
+        emitting(&mut mesh, [[1.0, 2.45, 1.6], [3.0, 2.45, 1.6], [3.0, 2.45, 2.6], [1.0, 2.45, 2.6]], -Vec3::Y, 2);
+        rows.two_sided = (0..rows.len()).map(|i| i % 3 == 0).collect();
+        rows.sampling.inhibit = 0.01;
+        let flame = Emitter { value: 2000.0, color: [1.0, 0.6, 0.3], subdivide: 8.0, backsplash: (0.0, 23.0) };
+        let panel = Emitter { value: 500.0, color: [0.8, 0.9, 1.0], subdivide: 16.0, backsplash: (0.05, 23.0) };
+        let materials = vec![crate::testutil::material("wall"), Material { emitter: Some(flame), double_sided: true, ..crate::testutil::material("flame") }, Material { emitter: Some(panel), ..crate::testutil::material("panel") }];
+        let scene = crate::testutil::scene(mesh, materials);
+        for pieces in [false, true] {
+            let mut bvh = Bvh::build(&scene.mesh);
+            if pieces {
+                let c = crate::testutil::casters_of(&scene.mesh, 40.0, 30.0);
+                bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, q3gltf_convert::units::DEFAULT_SCALE)));
+            }
+            let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter");
+            for fast in [false, true] {
+                let what = format!("pieces {pieces}, fast {fast}");
+                let emitters = model::patches(&scene);
+                assert_eq!(emitters.0.len(), 2);
+                assert!(emitters.1.len() > 2 * surface::PATCH_CHUNK, "{} patches: several dispatches add to the sums", emitters.1.len());
+                let cpu = model::basis_from(emitters.clone(), &scene, &rows, &bvh, fast);
+                let bytes_per_ff = model::bytes_per_form_factor(&scene, &emitters.0, &emitters.1);
+                let request = model::Request { patches: &emitters.1, bytes_per_ff: &bytes_per_ff, groups: 2, units_m: scene.units_m, fast };
+                let sums = gpu.surface_sums(&request).expect("wgpu has the kernel").unwrap();
+                let emitters_cut = |r: &model::Request| r.patches.iter().zip(r.bytes_per_ff).map(|(p, b)| std::f32::consts::PI * p.weight * crate::scene::q3map2::FALLOFF_TOLERANCE_BYTES / b).fold(0.0f32, f32::max);
+                let dev = model::basis_from_sums(emitters.clone(), &sums, rows.len());
+                // The f32 form factor decides `-fast`'s cut; at the cut a patch adds at most
+                // a byte, and a few rays in ten thousand may fall on the other side.
+                assert!(dev.rays.abs_diff(cpu.rays) * 1000 <= cpu.rays, "{what}: rays {} on the device, {} on the CPU", dev.rays, cpu.rays);
+                if !fast {
+                    assert_eq!(dev.rays, cpu.rays, "{what}: rays");
+                }
+                let dense = |b: &model::SurfaceBasis| (0..rows.len()).map(|i| (0..2).map(|g| b.row(i).iter().filter(|e| e.0 == g).map(|e| e.1).sum::<f32>()).collect::<Vec<f32>>()).collect::<Vec<_>>();
+                let (c, d) = (dense(&cpu), dense(&dev));
+                let top = c.iter().flatten().copied().fold(0.0f32, f32::max);
+                assert!(top > 0.0, "{what}: the emitters light the room");
+                for g in 0..2 {
+                    assert!((0..rows.len()).filter(|&i| c[i][g] > 1e-3 * top).count() > 50, "{what}: group {g} lights rows");
+                }
+                // With `-fast`, a patch whose f32 form factor lands on the other side of the
+                // cut adds or misses at most the cut's value, in a few rows.
+                let at_cut = emitters_cut(&request);
+                let mut off = 0;
+                for i in 0..rows.len() {
+                    for g in 0..2 {
+                        let diff = (c[i][g] - d[i][g]).abs();
+                        if diff > 1e-4 * top {
+                            off += 1;
+                            assert!(fast && diff <= 2.0 * at_cut, "{what}: row {i} group {g}: cpu {} wgpu {}", c[i][g], d[i][g]);
+                        }
+                    }
+                }
+                assert!(off * 100 <= rows.len(), "{what}: {off} sums differ at the cut");
+            }
+        }
     }
 
     #[test]

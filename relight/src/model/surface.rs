@@ -216,10 +216,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
         return SurfaceBasis { groups, offsets: vec![0; rows.len() + 1], ..Default::default() };
     }
     let u = scene.units_m;
-    let ob = scene.materials.iter().find(|m| m.emitter.is_some()).map_or(2, |m| m.overbright_bits);
-    let e_per_byte = q3gltf_convert::units::e_per_byte(ob) as f32;
-    // Bytes per unit of form factor, per patch: 0.75 V (the brightest channel's).
-    let bytes_per_ff: Vec<f32> = patches.iter().map(|p| p.weight * groups[p.group as usize].source_rgb.iter().copied().fold(0.0, f32::max) / e_per_byte).collect();
+    let bytes_per_ff = bytes_per_form_factor(scene, &groups, &patches);
     let (push, s) = (crate::scene::q3map2::AREA_PUSH_UNITS * u, &rows.sampling);
     // Rows in blocks of neighbours, patch by patch ([`by_neighbour_blocks`]); per patch
     // what stopped the previous row's ray to it, tried after what stopped this row's
@@ -318,10 +315,77 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
         b.offsets.push(b.entries.len() as u32);
         b.rays += rays;
     }
-    // Groups that reach no row stay listed (the report says so) but fit to nothing.
-    for g in &mut groups {
+    round_areas(&mut groups);
+    b.groups = groups;
+    b
+}
+
+/// Bytes per unit of form factor, per patch: `0.75 V` of the brightest channel, times the
+/// patch's weight (what [`SKIP_BYTES`] and `-fast` compare with).
+pub fn bytes_per_form_factor(scene: &Scene, groups: &[Group], patches: &[Patch]) -> Vec<f32> {
+    let ob = scene.materials.iter().find(|m| m.emitter.is_some()).map_or(2, |m| m.overbright_bits);
+    let e_per_byte = q3gltf_convert::units::e_per_byte(ob) as f32;
+    patches.iter().map(|p| p.weight * groups[p.group as usize].source_rgb.iter().copied().fold(0.0, f32::max) / e_per_byte).collect()
+}
+
+/// Groups that reach no row stay listed (the report says so) but fit to nothing; their
+/// areas are reported to the square millimetre.
+fn round_areas(groups: &mut [Group]) {
+    for g in groups {
         g.area_m2 = (g.area_m2 * 1e6).round() / 1e6;
     }
+}
+
+/// What a backend with its own kernel for the basis computes ([`basis_from`]'s sums, on
+/// the device): per row, every group's `B_is`, and the shadow rays traced.
+#[derive(Debug, Clone)]
+pub struct Sums {
+    /// `rows x groups`, row-major.
+    pub per_row: Vec<f32>,
+    pub rays: u64,
+}
+
+/// Everything a device needs to build the basis as [`basis_from`] does: the patches, their
+/// [`bytes_per_form_factor`], and q3map2's distances in meters.
+#[derive(Debug, Clone, Copy)]
+pub struct Request<'a> {
+    pub patches: &'a [Patch],
+    pub bytes_per_ff: &'a [f32],
+    pub groups: usize,
+    /// Meters per Quake unit.
+    pub units_m: f32,
+    /// q3map2's `-fast` cut of area lights.
+    pub fast: bool,
+}
+
+impl<'a> Request<'a> {
+    /// Samples nearer a patch's plane than this are pushed out to it for the form factor, m.
+    pub fn push_m(&self) -> f32 {
+        crate::scene::q3map2::AREA_PUSH_UNITS * self.units_m
+    }
+    /// The shadow ray's target behind a two-sided patch lies this far behind its origin, m.
+    pub fn behind_m(&self) -> f32 {
+        2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * self.units_m
+    }
+    /// [`SKIP_BYTES`].
+    pub fn skip_bytes(&self) -> f32 {
+        SKIP_BYTES
+    }
+}
+
+/// The basis from a device's [`Sums`] (the entries of a row in group order, zeros left
+/// out, as [`basis_from`] leaves out the groups whose patches add nothing).
+pub fn basis_from_sums(emitters: (Vec<Group>, Vec<Patch>), sums: &Sums, rows: usize) -> SurfaceBasis {
+    let (mut groups, _) = emitters;
+    let ng = groups.len();
+    let mut b = SurfaceBasis { offsets: Vec::with_capacity(rows + 1), rays: sums.rays, ..Default::default() };
+    b.offsets.push(0);
+    for i in 0..rows {
+        let row = sums.per_row.get(i * ng..(i + 1) * ng).unwrap_or(&[]);
+        b.entries.extend(row.iter().enumerate().filter(|(_, v)| **v != 0.0).map(|(g, v)| (g as u32, *v)));
+        b.offsets.push(b.entries.len() as u32);
+    }
+    round_areas(&mut groups);
     b.groups = groups;
     b
 }
