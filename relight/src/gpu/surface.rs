@@ -126,7 +126,7 @@ impl GpuBackend {
                         units: req.units_m,
                         push: req.push_m(),
                         behind: req.behind_m(),
-                        skip_bytes: req.skip_bytes(),
+                        skip_bytes: crate::model::surface::SKIP_BYTES,
                         tolerance_bytes: crate::scene::q3map2::FALLOFF_TOLERANCE_BYTES,
                         shadow_offset: self.sampling.shadow_offset,
                         inhibit: self.sampling.inhibit,

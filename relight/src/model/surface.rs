@@ -191,7 +191,7 @@ fn emit(scene: &Scene, group: &mut Group, g: u32, m: usize, w: Vec<Vec3>, normal
 /// Below this many bytes (at the group's own value) a patch's upper bound skips the
 /// ray: the basis is exact above it, a numerical cut of ours (q3map2 has none without
 /// `-fast`).
-const SKIP_BYTES: f32 = 0.01;
+pub const SKIP_BYTES: f32 = 0.01;
 
 /// Builds the basis for `rows`. `fast`: q3map2's `-fast` cut of area lights.
 pub fn basis(scene: &Scene, rows: &Rows, bvh: &Bvh, fast: bool) -> SurfaceBasis {
@@ -217,7 +217,9 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
     }
     let u = scene.units_m;
     let bytes_per_ff = bytes_per_form_factor(scene, &groups, &patches);
-    let (push, s) = (crate::scene::q3map2::AREA_PUSH_UNITS * u, &rows.sampling);
+    // q3map2's distances as a device reads them too ([`Request`]).
+    let request = Request { patches: &patches, bytes_per_ff: &bytes_per_ff, groups: groups.len(), units_m: u, fast };
+    let (push, behind, s) = (request.push_m(), request.behind_m(), &rows.sampling);
     // Rows in blocks of neighbours, patch by patch ([`by_neighbour_blocks`]); per patch
     // what stopped the previous row's ray to it, tried after what stopped this row's
     // previous ray (the answer is the walk's). A row's state: its (group, B) entries, its
@@ -266,7 +268,7 @@ pub fn basis_from(emitters: (Vec<Group>, Vec<Patch>), scene: &Scene, rows: &Rows
         let mut target = p.origin;
         if ff < 0.0 && (p.two_sided || two_sided) {
             ff = -ff;
-            target = p.origin - p.normal * (2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * u);
+            target = p.origin - p.normal * behind;
         }
         if !(ff > 0.0) {
             return None;
@@ -366,10 +368,6 @@ impl<'a> Request<'a> {
     /// The shadow ray's target behind a two-sided patch lies this far behind its origin, m.
     pub fn behind_m(&self) -> f32 {
         2.0 * crate::scene::q3map2::AREA_ORIGIN_OFFSET_UNITS * self.units_m
-    }
-    /// [`SKIP_BYTES`].
-    pub fn skip_bytes(&self) -> f32 {
-        SKIP_BYTES
     }
 }
 
