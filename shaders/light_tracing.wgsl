@@ -94,44 +94,14 @@ fn cosine_dir(n: vec3<f32>, u1: f32, u2: f32) -> vec3<f32> {
     return normalize(t1 * (r * cos(phi)) + t2 * (r * sin(phi)) + n * sqrt(max(1.0 - u1, 0.0)));
 }
 
-struct Hit {
-    t: f32,
-    tri: u32,
-}
-
-// Nearest hit along o + s d, s in (0, 1): Bvh::first_hit (same order, same tests).
+// Nearest hit along o + s d, s in (0, 1): Bvh::first_hit (bvh.wgsl's walk; the mesh's
+// triangle index in `tri`, or a negative `t` where nothing is hit).
 fn first_hit(o: vec3<f32>, d: vec3<f32>) -> Hit {
-    var best = Hit(-1.0, 0u);
-    if (arrayLength(&tris) == 0u) {
-        return best;
+    var h = first_hit_after(o, d, signs(d), 0.0, 1.0);
+    if (h.tri != NO_HIT) {
+        h.tri = tri_index[h.tri];
     }
-    let inv = 1.0 / d;
-    var limit = 1.0;
-    var stack: array<u32, 48>;
-    var sp = 1u;
-    stack[0] = 0u;
-    while (sp > 0u) {
-        sp = sp - 1u;
-        let here = stack[sp];
-        let node = nodes[here];
-        if (!slab(node, o, inv, limit)) {
-            continue;
-        }
-        if (node.count > 0u) {
-            for (var k = 0u; k < node.count; k = k + 1u) {
-                let t = intersect(tris[node.right_or_first + k], o, d, 0.0);
-                if (t > 0.0 && t < limit) {
-                    limit = t;
-                    best = Hit(t, tri_index[node.right_or_first + k]);
-                }
-            }
-        } else if (sp + 2u <= MAX_DEPTH) {
-            stack[sp] = node.right_or_first;
-            stack[sp + 1u] = here + 1u;
-            sp = sp + 2u;
-        }
-    }
-    return best;
+    return h;
 }
 
 fn weights_at(st: SplatTri, x: vec3<f32>) -> vec3<f32> {

@@ -2,8 +2,9 @@
 //! ([`crate::gpu`]). Both hold the rows and the BVH, uploaded or borrowed once. A backend
 //! traces shadow rays and evaluates the point and spot lights ([`crate::model::lights`]),
 //! the one part of the model whose cost grows with lights x rows; the rest of the model
-//! runs on the CPU in f64 ([`crate::model`]), except the surface lights' basis, which a
-//! backend with a kernel for it builds ([`Backend::surface_sums`]).
+//! runs on the CPU in f64 ([`crate::model`]), except the surface lights' basis and the
+//! sun's visibility, which a backend with kernels for them computes
+//! ([`Backend::surface_sums`], [`Backend::sun_bits`]).
 
 use glam::Vec3;
 
@@ -33,6 +34,24 @@ pub trait Backend {
     /// [`crate::model::surface::basis_from`], builds the basis.
     fn surface_sums(&mut self, _request: &surface::Request) -> Option<Result<surface::Sums>> {
         None
+    }
+    /// The sun's visibility bits of `rows` (any rows: the sun search scores a subsample)
+    /// towards each of `dirs` (unit, to the sun), `sky` flagging the mesh's sky
+    /// triangles, where the backend has a kernel for them (wgpu: `shaders/sun.wgsl`);
+    /// `None`: the CPU reference runs ([`sun_bits`]).
+    fn sun_bits(&mut self, _rows: &Rows, _dirs: &[Vec3], _sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
+        None
+    }
+}
+
+/// The sun's visibility bits of `rows` towards each of `dirs`: the backend's kernel where
+/// it has one, else [`visibility::trace_sun`] on the CPU, the directions in parallel (the
+/// same bits in any order).
+pub fn sun_bits(backend: &mut dyn Backend, bvh: &Bvh, rows: &Rows, dirs: &[Vec3], sky: &[bool]) -> Result<Vec<Vec<u32>>> {
+    use rayon::prelude::*;
+    match backend.sun_bits(rows, dirs, sky) {
+        Some(bits) => bits,
+        None => Ok(dirs.par_iter().map(|&d| visibility::trace_sun(bvh, rows, d, sky)).collect()),
     }
 }
 

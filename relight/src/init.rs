@@ -638,6 +638,10 @@ fn shortfall(sub: &Rows, i: usize, c: usize, x: f64) -> (f64, f64) {
 const REFINE_GRIDS: [(i32, f64); 2] = [(8, 0.25), (5, 0.1)];
 const REFINE_STEP_DEG: f64 = 0.1;
 
+/// The sun's visibility bits of the rows towards each of a batch of directions, one bit
+/// vector per direction ([`crate::backend::sun_bits`]).
+pub type SunTracer<'a> = dyn FnMut(&[Vec3]) -> crate::error::Result<Vec<Vec<u32>>> + 'a;
+
 /// The sun direction (and irradiance) that best explains what the model `base` leaves of
 /// the target on `sub`. Without `from`: a coarse search over the upper hemisphere (every
 /// 10 degrees of elevation, 15 of azimuth, plus `extra` directions such as the input's
@@ -647,13 +651,17 @@ const REFINE_STEP_DEG: f64 = 0.1;
 /// by the error its best non-negative irradiance removes (per channel, exact). The
 /// gradient cannot do this part: it sees the cosine, not the shadows' edges. `None` when
 /// no direction lowers the error.
-pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra: &[Vec3], from: Option<Vec3>) -> Option<(Sun, f64)> {
+///
+/// `trace` gives the sun's visibility bits of `sub` towards a batch of directions
+/// ([`crate::backend::sun_bits`]: the device's kernel or the CPU's walks); each batch of
+/// the search (the coarse grid, each fine grid, each step of the pattern search) is one
+/// call, and the scores are summed on the CPU in f64 whatever traced the bits.
+pub fn sun_search(sub: &Rows, base: &[[f64; 3]], extra: &[Vec3], from: Option<Vec3>, trace: &mut SunTracer<'_>) -> crate::error::Result<Option<(Sun, f64)>> {
     use crate::fit::{angles as sun_angles, direction as sun_direction};
     use rayon::prelude::*;
-    let score = |w: Vec3| -> (f64, [f32; 3]) {
-        let bits = crate::trace::visibility::trace_sun(bvh, sub, w, sky);
+    let score_bits = |w: Vec3, bits: &[u32]| -> (f64, [f32; 3]) {
         let (mut h, mut g2) = ([0.0f64; 3], [0.0f64; 3]);
-        visibility::each_set_bit(&bits, 0..sub.len(), |i| {
+        visibility::each_set_bit(bits, 0..sub.len(), |i| {
             let cos = sub.normal[i].dot(w).max(0.0) as f64;
             for c in 0..3 {
                 // Censored rows count too: a sunlit floor is often saturated.
@@ -666,6 +674,15 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
         let s: f64 = (0..3).map(|c| if g2[c] > 0.0 && h[c] > 0.0 { h[c] * h[c] / g2[c] } else { 0.0 }).sum();
         (s, [0, 1, 2].map(|c| if g2[c] > 0.0 { (h[c] / g2[c]).max(0.0) as f32 } else { 0.0 }))
     };
+    // Each of `at`'s directions (elevation, azimuth) and its score, in order.
+    let mut scores = |at: &[(f64, f64)]| -> crate::error::Result<Vec<(f64, (f64, f64))>> {
+        let dirs: Vec<Vec3> = at.iter().map(|&(t, p)| sun_direction(t, p).0).collect();
+        let bits = trace(&dirs)?;
+        if bits.len() != dirs.len() {
+            return Err(crate::error::Error::Gpu(format!("the sun's trace gave {} bit vectors for {} directions", bits.len(), dirs.len())));
+        }
+        Ok(dirs.par_iter().zip(&bits).zip(at).map(|((&w, b), &at)| (score_bits(w, b).0, at)).collect())
+    };
     let mut cands: Vec<(f64, f64)> = Vec::new();
     if from.is_none() {
         for e in 0..9 {
@@ -676,8 +693,8 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
         cands.push((90f64.to_radians(), 0.0));
     }
     cands.extend(extra.iter().chain(from.as_ref()).map(|&w| sun_angles(w)));
-    let scored: Vec<(f64, (f64, f64))> = cands.par_iter().map(|&(t, p)| (score(sun_direction(t, p).0).0, (t, p))).collect();
-    let (mut best_s, (mut t, mut p)) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0))?;
+    let scored = scores(&cands)?;
+    let Some((mut best_s, (mut t, mut p))) = scored.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)) else { return Ok(None) };
     // The score is piecewise constant where the lit rows share a normal (the cosine
     // cancels in the least-squares fit; only the set of sunlit rows changes), so a pattern
     // search stalls on plateaus. From a known direction: every direction of a fine grid
@@ -688,7 +705,7 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
                 .flat_map(|a| (-cells..=cells).map(move |b| (a, b)))
                 .map(|(a, b)| ((t + (a as f64 * step_deg).to_radians()).clamp(0.0, std::f64::consts::FRAC_PI_2), p + (b as f64 * step_deg).to_radians()))
                 .collect();
-            let local: Vec<(f64, (f64, f64))> = fine.par_iter().map(|&(a, b)| (score(sun_direction(a, b).0).0, (a, b))).collect();
+            let local = scores(&fine)?;
             if let Some((s, at)) = local.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)).filter(|x| x.0 > best_s) {
                 (best_s, (t, p)) = (s, at);
             }
@@ -700,18 +717,19 @@ pub fn sun_search(sub: &Rows, bvh: &Bvh, sky: &[bool], base: &[[f64; 3]], extra:
             .iter()
             .map(|(a, b)| ((t + a * step).clamp(0.0, std::f64::consts::FRAC_PI_2), p + b * step))
             .collect();
-        let local: Vec<(f64, (f64, f64))> = around.par_iter().map(|&(a, b)| (score(sun_direction(a, b).0).0, (a, b))).collect();
+        let local = scores(&around)?;
         match local.into_iter().max_by(|a, b| a.0.total_cmp(&b.0)) {
             Some((s, at)) if s > best_s => (best_s, (t, p)) = (s, at),
             _ => step *= 0.5,
         }
     }
     if !(best_s > 0.0) {
-        return None;
+        return Ok(None);
     }
     let w = sun_direction(t, p).0;
-    let rgb = score(w).1;
-    Some((Sun { to_sun: w, rgb: rgb.map(|v| v.max(1e-6)) }, best_s))
+    let bits = trace(&[w])?;
+    let rgb = score_bits(w, bits.first().map_or(&[][..], Vec::as_slice)).1;
+    Ok(Some((Sun { to_sun: w, rgb: rgb.map(|v| v.max(1e-6)) }, best_s)))
 }
 
 #[cfg(test)]

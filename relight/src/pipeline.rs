@@ -761,7 +761,7 @@ pub fn render_on(scene: &Scene, model: &Model, bounces: usize, bounce_rays: usiz
     };
     let bases = build_bases(scene, model::surface::patches(scene), &rows, &bvh, &plan, bounce_rays, false, backend.as_mut(), &mut st)?;
     let mut vis = crate::trace::visibility::Visibility::default();
-    vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &bases.sky_triangles));
+    vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, rows.len(), &mut |d| Ok(crate::backend::sun_bits(backend.as_mut(), &bvh, &rows, &[d], &bases.sky_triangles)?.into_iter().next().unwrap_or_default()))?;
     vis.update(&model::lights::sources(&model.lights), 0.0, &rows.sampling, rows.len(), &mut |p| backend.trace(p))?;
     let e = if model.lights.is_empty() { Vec::new() } else { backend.irradiance(&vis, &model.lights)? };
     let fw = model::forward(model, &rows, &bases, &vis, &e);
@@ -915,7 +915,8 @@ fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         let vis = crate::trace::visibility::Visibility::default();
         let base = model::radiance(&base_model, &sub, &sub_bases, &vis, &mut Cpu::new(&sub, &bvh))?;
         let extra: Vec<Vec3> = scene.suns.iter().map(|s| s.to_sun).collect();
-        start.sun = init::sun_search(&sub, &bvh, &bases.sky_triangles, &base, &extra, None).map(|(s, _)| s);
+        let sky = &bases.sky_triangles;
+        start.sun = init::sun_search(&sub, &base, &extra, None, &mut |dirs| crate::backend::sun_bits(backend.as_mut(), &bvh, &sub, dirs, sky))?.map(|(s, _)| s);
     }
     st.done("sun");
     let mut auto_stats: Option<init::AutoStats> = None;
@@ -1700,7 +1701,16 @@ fn refine_sun(fit: &mut Fitter, s: Sun, seed: u64) {
         return;
     }
     let Ok(base) = model::radiance(&others, &sub, &sub_bases, &vis, &mut Cpu::new(&sub, bvh)) else { return };
-    if let Some((better, _)) = init::sun_search(&sub, bvh, &fit.bases.sky_triangles, &base, &[], Some(s.to_sun)) {
+    let sky = &fit.bases.sky_triangles;
+    let backend = &mut *fit.backend;
+    let found = match init::sun_search(&sub, &base, &[], Some(s.to_sun), &mut |dirs| crate::backend::sun_bits(&mut *backend, bvh, &sub, dirs, sky)) {
+        Ok(found) => found,
+        Err(err) => {
+            fit.failure = Some(err);
+            return;
+        }
+    };
+    if let Some((better, _)) = found {
         let before = fit.eval().f;
         let saved = (fit.model.clone(), fit.vis.clone());
         fit.model.sun = Some(Sun { rgb: s.rgb, ..better });

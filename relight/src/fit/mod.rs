@@ -251,8 +251,8 @@ impl<'a> Fitter<'a> {
     fn retrace_untimed(&mut self, m: &Model) -> crate::error::Result<()> {
         let n = self.rows.len();
         let (bvh, rows, sky) = (self.bvh, self.rows, &self.bases.sky_triangles);
-        self.vis.update_sun(m.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| visibility::trace_sun(bvh, rows, d, sky));
         let backend = &mut *self.backend;
+        self.vis.update_sun(m.sun.map(|s| s.to_sun), self.sun_retrace_tol, n, &mut |d| Ok(crate::backend::sun_bits(&mut *backend, bvh, rows, &[d], sky)?.into_iter().next().unwrap_or_default()))?;
         self.vis.update(&crate::model::lights::sources(&m.lights), self.retrace_tol, &self.rows.sampling, n, &mut |p| backend.trace(p)).map(|_| ())
     }
 

@@ -4,8 +4,9 @@
 //! visibility of lights re-traced since the last call and run
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
-//! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]); every
-//! shadow ray walks `shaders/shadow.wgsl`. The target projection's kernel is
+//! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]), the
+//! sun's visibility `shaders/sun.wgsl` ([`sun`]); every shadow ray walks
+//! `shaders/shadow.wgsl`. The target projection's kernel is
 //! `shaders/target.wgsl`; the light-tracing estimator's is `shaders/light_tracing.wgsl`
 //! ([`TracingGpu`]). Pipelines are built in one place, [`Pipelines`].
 
@@ -21,6 +22,7 @@ use crate::rows::projection::{self as target, CORNER_FLOATS};
 use crate::rows::Rows;
 use crate::trace::visibility::Visibility;
 
+mod sun;
 mod surface;
 mod tracing;
 pub use tracing::TracingGpu;
@@ -294,6 +296,8 @@ struct Pipelines {
     tracing_gradient: wgpu::ComputePipeline,
     /// The surface lights' basis ([`surface`]).
     surface: wgpu::ComputePipeline,
+    /// The sun's visibility ([`sun`]).
+    sun: wgpu::ComputePipeline,
 }
 
 impl Pipelines {
@@ -335,6 +339,7 @@ impl Pipelines {
             target: make("target", include_str!("../../../shaders/target.wgsl").to_string(), "main", None),
             trace: make("trace", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
             surface: make("surface lights", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/surface_lights.wgsl")), "main", None),
+            sun: make("sun", format!("{bvh}\n{}", include_str!("../../../shaders/sun.wgsl")), "main", None),
             irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
             gradient: make("light gradient", gradient_src.clone(), "main", Some(&gradient_layout)),
             reduce: make("light gradient blocks", gradient_src, "reduce_blocks", Some(&gradient_layout)),
@@ -353,6 +358,13 @@ pub struct GpuBackend {
     tris: wgpu::Buffer,
     /// The pieces' leaves (one dummy entry for the mesh's tree).
     bounds: wgpu::Buffer,
+    /// The mesh's own tree, whose first hits the sun's rays look for (the same buffers
+    /// as `nodes` and `tris` where the scene has no pieces), each of its triangles' index
+    /// in the mesh, and its rays' length (`Tree::reach`, m).
+    mesh_nodes: wgpu::Buffer,
+    mesh_tris: wgpu::Buffer,
+    mesh_tri_index: Vec<u32>,
+    mesh_reach: f32,
     pieces: Option<f32>,
     /// The device's visibility buffer: `vis_capacity` slots of `words` words each.
     vis: Option<wgpu::Buffer>,
@@ -402,13 +414,24 @@ impl GpuBackend {
             Some(s) => (&s.tree, s.bound.iter().zip(&s.parent).map(|(b, &parent)| GpuBound { plane: *b, parent, pad: [0; 3] }).collect()),
             None => (&bvh.tree, vec![GpuBound { plane: [0.0; 4], parent: crate::trace::pieces::NO_PARENT, pad: [0; 3] }]),
         };
-        if gr.len() * std::mem::size_of::<GpuRow>() > max || shadow.tris.len() * std::mem::size_of::<crate::trace::bvh::Tri>() > max || bounds.len() * std::mem::size_of::<GpuBound>() > max {
+        let tri_bytes = shadow.tris.len().max(bvh.tree.tris.len()) * std::mem::size_of::<crate::trace::bvh::Tri>();
+        if gr.len() * std::mem::size_of::<GpuRow>() > max || tri_bytes > max || bounds.len() * std::mem::size_of::<GpuBound>() > max {
             return Err(Error::Gpu(format!("the rows or the BVH exceed the adapter's storage binding limit of {max} bytes")));
         }
+        let nodes = storage(d, "nodes", bytemuck::cast_slice(&shadow.nodes));
+        let tris = storage(d, "tris", bytemuck::cast_slice(&shadow.tris));
+        let (mesh_nodes, mesh_tris) = match &bvh.shadow {
+            Some(_) => (storage(d, "mesh nodes", bytemuck::cast_slice(&bvh.tree.nodes)), storage(d, "mesh tris", bytemuck::cast_slice(&bvh.tree.tris))),
+            None => (nodes.clone(), tris.clone()),
+        };
         Ok(GpuBackend {
             rows: storage(d, "rows", bytemuck::cast_slice(&gr)),
-            nodes: storage(d, "nodes", bytemuck::cast_slice(&shadow.nodes)),
-            tris: storage(d, "tris", bytemuck::cast_slice(&shadow.tris)),
+            nodes,
+            tris,
+            mesh_nodes,
+            mesh_tris,
+            mesh_tri_index: bvh.tree.tri_index.clone(),
+            mesh_reach: bvh.tree.reach(),
             bounds: storage(d, "bounds", bytemuck::cast_slice(&bounds)),
             pieces: bvh.shadow.as_ref().map(|s| s.leaf_epsilon_m),
             n: rows.len() as u32,
@@ -599,6 +622,9 @@ impl Backend for GpuBackend {
     fn surface_sums(&mut self, request: &crate::model::surface::Request) -> Option<Result<crate::model::surface::Sums>> {
         Some(self.try_surface_sums(request))
     }
+    fn sun_bits(&mut self, rows: &Rows, dirs: &[Vec3], sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
+        Some(self.try_sun_bits(rows, dirs, sky))
+    }
 }
 
 #[cfg(test)]
@@ -686,6 +712,54 @@ mod tests {
         let c_bits: Vec<Vec<u32>> = positions.iter().map(|&(p, r)| crate::trace::visibility::trace_light(&bvh, &rows, p, r)).collect();
         assert_eq!(g_bits, c_bits, "visibility bits differ");
         assert!(c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>() > 0, "the pillar casts a shadow");
+    }
+
+    /// The sun's visibility on the device is the CPU's (`trace_sun`) bit for bit: a room
+    /// whose ceiling is sky, a pillar that shadows the floor, a third of the rows
+    /// two-sided, rows standing on planes with their solid ahead; suns straight overhead
+    /// (the ray along two axes), along a wall, low, below the horizon; rows other than the
+    /// backend's (a subsample, as the sun search scores); and the open scene, without sky.
+    #[test]
+    fn wgpu_traces_the_sun_as_the_cpu_does() {
+        let (mut mesh, mut rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        rows.sampling.inhibit = 0.01;
+        rows.sampling.on_epsilon = 0.001;
+        rows.two_sided = (0..rows.len()).map(|i| i % 3 == 0).collect();
+        rows.solid_ahead = (0..rows.len()).map(|i| crate::rows::SolidAhead((i % 8) as u8)).collect();
+        let bvh = Bvh::build(&mesh);
+        let sky: Vec<bool> = mesh.triangles.iter().map(|t| t.iter().all(|&v| mesh.positions[v as usize].y == 2.5)).collect();
+        assert!(sky.iter().any(|&k| k) && !sky.iter().all(|&k| k));
+        let dirs = [
+            Vec3::Y,
+            Vec3::new(0.0, 0.8, 0.6),
+            Vec3::new(0.3, 0.9, -0.2).normalize(),
+            Vec3::new(-0.5, 0.7, 0.4).normalize(),
+            Vec3::new(0.9, 0.1, 0.3).normalize(),
+            Vec3::new(0.2, -0.9, 0.1).normalize(),
+        ];
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        let (sub, _) = rows.subsample(200, 3);
+        for (what, r) in [("rows", &rows), ("subsample", &sub)] {
+            for open in [false, true] {
+                let sky = if open { vec![false; sky.len()] } else { sky.clone() };
+                let got = gpu.sun_bits(r, &dirs, &sky).expect("wgpu has a kernel").unwrap();
+                assert_eq!(got.len(), dirs.len());
+                let mut seen = 0;
+                for (k, &w) in dirs.iter().enumerate() {
+                    let want = crate::trace::visibility::trace_sun(&bvh, r, w, &sky);
+                    assert_eq!(got[k], want, "{what}, open {open}, sun {w}");
+                    seen += want.iter().map(|b| b.count_ones()).sum::<u32>();
+                }
+                // Some rows see the sun, and (with the sky) the pillar and the walls stop some.
+                assert!(seen > 0, "{what}, open {open}: no row sees any sun");
+            }
+        }
+        // The overhead sun's shadow of the pillar is there.
+        let up = gpu.sun_bits(&rows, &[Vec3::Y], &sky).unwrap().unwrap();
+        let floor_lit = (0..rows.len()).filter(|&i| rows.normal[i].y > 0.9 && rows.pos[i].y < 0.01).filter(|&i| up[0][i / 32] >> (i % 32) & 1 == 1).count();
+        let floor = (0..rows.len()).filter(|&i| rows.normal[i].y > 0.9 && rows.pos[i].y < 0.01).count();
+        assert!(floor_lit > 0 && floor_lit < floor, "{floor_lit} of {floor} floor rows lit by the overhead sun");
     }
 
     /// The device builds the surface lights' basis as the CPU does: the same rays (but at

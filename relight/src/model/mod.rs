@@ -749,7 +749,7 @@ mod tests {
         vis.update(&lights::sources(&lights), 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let sun = Sun { to_sun: Vec3::new(0.3, 0.9, -0.2).normalize(), rgb: [1.5, 1.2, 0.9] };
         let sky_tri = vec![true; mesh.triangles.len()];
-        vis.update_sun(Some(sun.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
+        vis.update_sun(Some(sun.to_sun), 0.0, n, &mut |d| Ok(crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri))).unwrap();
         for terms in 0..4 {
             let model = Model {
                 lights: lights.clone(),
@@ -832,7 +832,7 @@ mod tests {
         let mut vis = Visibility::default();
         vis.update(&lights::sources(&model.lights), 0.0, &rows.sampling, n, &mut |p| Ok(p.iter().map(|&(q, r)| crate::trace::visibility::trace_light(&bvh, &rows, q, r)).collect())).unwrap();
         let sky_tri = vec![true; mesh.triangles.len()];
-        vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, n, &mut |d| crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri));
+        vis.update_sun(model.sun.map(|s| s.to_sun), 0.0, n, &mut |d| Ok(crate::trace::visibility::trace_sun(&bvh, &rows, d, &sky_tri))).unwrap();
         let mut cpu = Cpu::new(&rows, &bvh);
         // The floor in the widest gap between the lowest third of the rows' total
         // irradiance: it binds on some rows, and no row sits on its kink.

@@ -79,17 +79,19 @@ impl Visibility {
     }
 
     /// Brings the sun's bits up to date: re-traced (with `trace`) when the direction turned
-    /// by more than `tolerance` radians since the last trace; dropped without a sun.
-    pub fn update_sun(&mut self, to_sun: Option<Vec3>, tolerance: f32, n_vertices: usize, trace: &mut dyn FnMut(Vec3) -> Vec<u32>) {
+    /// by more than `tolerance` radians since the last trace; dropped without a sun. A
+    /// failed trace leaves the cache as it was.
+    pub fn update_sun(&mut self, to_sun: Option<Vec3>, tolerance: f32, n_vertices: usize, trace: &mut dyn FnMut(Vec3) -> crate::error::Result<Vec<u32>>) -> crate::error::Result<()> {
         let Some(dir) = to_sun else {
             self.sun = None;
-            return;
+            return Ok(());
         };
         let fresh = self.sun.as_ref().is_some_and(|(d, _)| d.dot(dir).clamp(-1.0, 1.0).acos() <= tolerance);
         if !fresh {
-            self.sun = Some((dir, trace(dir)));
+            self.sun = Some((dir, trace(dir)?));
             self.rays += n_vertices as u64;
         }
+        Ok(())
     }
 
     /// Brings the cache up to date with `lights` (position, brightest channel in W/sr:
