@@ -211,8 +211,9 @@ fn signs(v: vec3<f32>) -> vec3<bool> {
 // The nearest hit along o + s d with s in (t_min, t_max), exact hit tests, the binary
 // tree's order (`Tree::first_hit_after` and the CPU's other first-hit walks, hit for hit
 // with ties: the same order, the same tests); `neg`: `signs` of `d`, or of a direction
-// `d` is a positive multiple of.
-fn first_hit_after(o: vec3<f32>, d: vec3<f32>, neg: vec3<bool>, t_min: f32, t_max: f32) -> Hit {
+// `d` is a positive multiple of. A face met from behind (its winding normal along `d`)
+// counts only beyond `grace` (`PlaneRay::accepts`; -1: every face counts).
+fn first_hit_after(o: vec3<f32>, d: vec3<f32>, neg: vec3<bool>, t_min: f32, t_max: f32, grace: f32) -> Hit {
     var best = Hit(-1.0, NO_HIT);
     if (arrayLength(&tris) == 0u) {
         return best;
@@ -230,8 +231,9 @@ fn first_hit_after(o: vec3<f32>, d: vec3<f32>, neg: vec3<bool>, t_min: f32, t_ma
         }
         if (node.count > 0u) {
             for (var k = 0u; k < node.count; k = k + 1u) {
-                let t = intersect(tris[node.right_or_first + k], o, d, 0.0);
-                if (t > t_min && t < limit) {
+                let tri = tris[node.right_or_first + k];
+                let t = intersect(tri, o, d, 0.0);
+                if (t > t_min && t < limit && (t > grace || dot(cross(tri.e1, tri.e2), d) < 0.0)) {
                     limit = t;
                     best = Hit(t, node.right_or_first + k);
                 }

@@ -97,7 +97,7 @@ fn cosine_dir(n: vec3<f32>, u1: f32, u2: f32) -> vec3<f32> {
 // Nearest hit along o + s d, s in (0, 1): Bvh::first_hit (bvh.wgsl's walk; the mesh's
 // triangle index in `tri`, or a negative `t` where nothing is hit).
 fn first_hit(o: vec3<f32>, d: vec3<f32>) -> Hit {
-    var h = first_hit_after(o, d, signs(d), 0.0, 1.0);
+    var h = first_hit_after(o, d, signs(d), 0.0, 1.0, -1.0);
     if (h.tri != NO_HIT) {
         h.tri = tri_index[h.tri];
     }

@@ -68,7 +68,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let o = r.pos + n * sp.shadow_offset;
     // The signs from the direction (the ray is the direction times a length).
-    let hit = first_hit_after(o, w * sp.reach, signs(w), sp.t_min, 1.0);
+    let hit = first_hit_after(o, w * sp.reach, signs(w), sp.t_min, 1.0, -1.0);
     var seen = sp.open != 0u;
     if (hit.tri != NO_HIT) {
         seen = sky[hit.tri] != 0u;

@@ -2,9 +2,10 @@
 //! ([`crate::gpu`]). Both hold the rows and the BVH, uploaded or borrowed once. A backend
 //! traces shadow rays and evaluates the point and spot lights ([`crate::model::lights`]),
 //! the one part of the model whose cost grows with lights x rows; the rest of the model
-//! runs on the CPU in f64 ([`crate::model`]), except the surface lights' basis and the
-//! sun's visibility, which a backend with kernels for them computes
-//! ([`Backend::surface_sums`], [`Backend::sun_bits`]).
+//! runs on the CPU in f64 ([`crate::model`]), except the surface lights' basis, the sun's
+//! visibility and the first hits of the dirt's and the bounce's rays, which a backend with
+//! kernels for them computes
+//! ([`Backend::surface_sums`], [`Backend::sun_bits`], [`Backend::first_hits`]).
 
 use glam::Vec3;
 
@@ -13,7 +14,11 @@ use crate::model::lights::{self, Light, LightGrad};
 use crate::model::surface;
 use crate::rows::Rows;
 use crate::trace::bvh::Bvh;
+use crate::trace::tree::PlaneRay;
 use crate::trace::visibility::{self, Visibility};
+
+/// A ray's first hit on the mesh: the walk's parameter and the mesh's triangle, or none.
+pub type FirstHit = Option<(f32, u32)>;
 
 pub trait Backend {
     /// "cpu (N threads)" or "wgpu (adapter name, backend)".
@@ -41,6 +46,22 @@ pub trait Backend {
     /// `None`: the CPU reference runs ([`sun_bits`]).
     fn sun_bits(&mut self, _rows: &Rows, _dirs: &[Vec3], _sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
         None
+    }
+    /// Each ray's first hit on the mesh ([`crate::trace::tree::Tree::first_hit_of`]: the walk's parameter and
+    /// the mesh's triangle) where the backend has a kernel for them (wgpu:
+    /// `shaders/first_hits.wgsl`); `None`: the CPU walks them ([`first_hits`]).
+    fn first_hits(&mut self, _rays: &[PlaneRay]) -> Option<Result<Vec<FirstHit>>> {
+        None
+    }
+}
+
+/// Each ray's first hit on the mesh: the backend's kernel where it has one, else
+/// [`crate::trace::tree::Tree::first_hit_of`] on the CPU, the rays in parallel.
+pub fn first_hits(backend: &mut dyn Backend, bvh: &Bvh, rays: &[PlaneRay]) -> Result<Vec<FirstHit>> {
+    use rayon::prelude::*;
+    match backend.first_hits(rays) {
+        Some(hits) => hits,
+        None => Ok(rays.par_iter().map(|r| bvh.first_hit_of(r)).collect()),
     }
 }
 

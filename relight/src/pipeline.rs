@@ -665,14 +665,14 @@ fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::
     st.done("bases: surfaces");
     let luxels = rows.texel.iter().any(|t| t[0] != u32::MAX);
     let nb = if luxels && (plan.dirt != Optional::Off || plan.filter != Optional::Off) { model::compile::neighbours(rows) } else { vec![Vec::new(); rows.len()] };
-    let dirt = if plan.dirt != Optional::Off { model::compile::dirt(rows, bvh, &nb, &plan.dirt_sets, scene.units_m as f32) } else { Vec::new() };
+    let dirt = if plan.dirt != Optional::Off { model::compile::dirt(rows, bvh, &nb, &plan.dirt_sets, scene.units_m as f32, backend)? } else { Vec::new() };
     let filter = (plan.filter != Optional::Off && luxels).then(|| model::compile::filter(rows, &nb));
     st.done("bases: dirt, filter");
     let bounce_rays = if bounce_rays == 0 { model::bounce::rays_for(rows.len()) } else { bounce_rays };
     let (bounce, bounce_stats) = match plan.bounce {
         Optional::Off => (None, None),
         _ => {
-            let (t, s) = model::bounce::operator(scene, rows, bvh, bounce_rays, plan.fast_bounce);
+            let (t, s) = model::bounce::operator(scene, rows, bvh, bounce_rays, plan.fast_bounce, backend)?;
             (Some(t), Some(s))
         }
     };

@@ -5,7 +5,8 @@
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
 //! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]), the
-//! sun's visibility `shaders/sun.wgsl` ([`sun`]); every shadow ray walks
+//! sun's visibility `shaders/sun.wgsl` ([`sun`]), the first hits of the dirt's and the
+//! bounce's rays `shaders/first_hits.wgsl` ([`first_hits`]); every shadow ray walks
 //! `shaders/shadow.wgsl`. The target projection's kernel is
 //! `shaders/target.wgsl`; the light-tracing estimator's is `shaders/light_tracing.wgsl`
 //! ([`TracingGpu`]). Pipelines are built in one place, [`Pipelines`].
@@ -22,6 +23,7 @@ use crate::rows::projection::{self as target, CORNER_FLOATS};
 use crate::rows::Rows;
 use crate::trace::visibility::Visibility;
 
+mod first_hits;
 mod sun;
 mod surface;
 mod tracing;
@@ -298,6 +300,8 @@ struct Pipelines {
     surface: wgpu::ComputePipeline,
     /// The sun's visibility ([`sun`]).
     sun: wgpu::ComputePipeline,
+    /// First hits of rays set up on the CPU ([`first_hits`]).
+    first_hits: wgpu::ComputePipeline,
 }
 
 impl Pipelines {
@@ -340,6 +344,7 @@ impl Pipelines {
             trace: make("trace", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
             surface: make("surface lights", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/surface_lights.wgsl")), "main", None),
             sun: make("sun", format!("{bvh}\n{}", include_str!("../../../shaders/sun.wgsl")), "main", None),
+            first_hits: make("first hits", format!("{bvh}\n{}", include_str!("../../../shaders/first_hits.wgsl")), "main", None),
             irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
             gradient: make("light gradient", gradient_src.clone(), "main", Some(&gradient_layout)),
             reduce: make("light gradient blocks", gradient_src, "reduce_blocks", Some(&gradient_layout)),
@@ -625,6 +630,9 @@ impl Backend for GpuBackend {
     fn sun_bits(&mut self, rows: &Rows, dirs: &[Vec3], sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
         Some(self.try_sun_bits(rows, dirs, sky))
     }
+    fn first_hits(&mut self, rays: &[crate::trace::tree::PlaneRay]) -> Option<Result<Vec<crate::backend::FirstHit>>> {
+        Some(self.try_first_hits(rays))
+    }
 }
 
 #[cfg(test)]
@@ -714,6 +722,72 @@ mod tests {
         assert!(c_bits[0].iter().map(|w| w.count_zeros()).sum::<u32>() > 0, "the pillar casts a shadow");
     }
 
+    /// The dirt's walks on the device (`first_hits.wgsl`) are the CPU's: a room with a
+    /// pillar, at each of the three depths the data chooses from (in metres a room this
+    /// size has them all within reach), rows on walls' planes with their solid ahead:
+    /// all but a few rows' factors the CPU's to the bit, and dirt where walls meet.
+    #[test]
+    fn wgpu_walks_the_dirt_as_the_cpu_does() {
+        use crate::model::compile::{dirt, neighbours, DIRT_DEPTHS_UNITS};
+        let (mut mesh, mut rows) = room(10);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        rows.sampling.on_epsilon = 0.001;
+        rows.solid_ahead = (0..rows.len()).map(|i| crate::rows::SolidAhead((i % 8) as u8)).collect();
+        let bvh = Bvh::build(&mesh);
+        let nb = neighbours(&rows);
+        // Quake units of 2 cm: depths of 0.64, 1.28 and 2.56 m.
+        let sets: Vec<crate::scene::DirtSettings> = DIRT_DEPTHS_UNITS.iter().map(|&d| crate::scene::DirtSettings { depth_units: d, ..crate::scene::DirtSettings::Q3MAP2 }).collect();
+        let cpu = dirt(&rows, &bvh, &nb, &sets, 0.02, &mut crate::backend::Cpu::new(&rows, &bvh)).unwrap();
+        let mut gpu_backend = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        let gpu = dirt(&rows, &bvh, &nb, &sets, 0.02, &mut gpu_backend).unwrap();
+        assert_eq!(cpu.len(), 3);
+        for (c, g) in cpu.iter().zip(&gpu) {
+            assert_eq!(c.settings, g.settings);
+            let differ = (0..rows.len()).filter(|&i| c.factor[i].to_bits() != g.factor[i].to_bits()).count();
+            // The rows here are the mesh's vertices, so many of their rays run along a
+            // wall's plane through its triangles' shared edges, where a device's rounding
+            // (division, fused products) may take a hit the CPU's misses: 8 of the 726
+            // rows differ at the shortest depth on lavapipe, 18 at the middle one, by up to
+            // 0.02.
+            let worst = (0..rows.len()).map(|i| (c.factor[i] - g.factor[i]).abs()).fold(0.0f32, f32::max);
+            assert!(differ * 20 <= rows.len() && worst < 0.05, "depth {} units: {differ} of {} rows differ, by up to {worst}", c.settings.depth_units, rows.len());
+            let dark = c.factor.iter().filter(|&&f| f < 0.99).count();
+            assert!(dark > 10, "depth {} units: {dark} of {} rows darkened", c.settings.depth_units, rows.len());
+        }
+    }
+
+    /// The device's first hits (`first_hits.wgsl`) are the CPU's walks (`Tree::first_hit_of`):
+    /// the bounce's cosine-weighted rays from every row of a room with a pillar, both
+    /// hemispheres, 64 a hemisphere, starting on the rows' planes. The rows are the mesh's
+    /// vertices, on the triangles' shared edges, where a device's rounding may decide a
+    /// grazing ray otherwise: nearly every ray hits the same triangle at the same distance.
+    #[test]
+    fn wgpu_walks_first_hits_as_the_cpu_does() {
+        use crate::trace::tree::PlaneRay;
+        let (mut mesh, rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        let bvh = Bvh::build(&mesh);
+        let rays: Vec<PlaneRay> = (0..rows.len())
+            .flat_map(|i| [1.0f32, -1.0].into_iter().flat_map(move |side| (0..64).map(move |cell| (i, side, cell))))
+            .map(|(i, side, cell)| {
+                let n = rows.normal[i] * side;
+                PlaneRay::new(rows.pos[i] + n * rows.sampling.ray_offset, crate::model::bounce::cosine_direction(n, i as u32, cell, 8), 10.0)
+            })
+            .collect();
+        let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+        let got = gpu.first_hits(&rays).expect("wgpu has a kernel").unwrap();
+        assert_eq!(got.len(), rays.len());
+        let want: Vec<Option<(f32, u32)>> = rays.iter().map(|r| bvh.first_hit_of(r)).collect();
+        let hits = want.iter().filter(|h| h.is_some()).count();
+        // The back hemispheres of the walls look out of the room: about half the rays.
+        assert!(hits * 3 > rays.len(), "{hits} of {} rays hit", rays.len());
+        let differ = got.iter().zip(&want).filter(|(g, w)| g != w).count();
+        assert!(differ * 100 <= rays.len(), "{differ} of {} rays differ", rays.len());
+        // The CPU's fallback is the CPU's walks.
+        let cpu = crate::backend::first_hits(&mut crate::backend::Cpu::new(&rows, &bvh), &bvh, &rays).unwrap();
+        assert_eq!(cpu, want);
+    }
+
     /// The sun's visibility on the device is the CPU's (`trace_sun`) bit for bit: a room
     /// whose ceiling is sky, a pillar that shadows the floor, a third of the rows
     /// two-sided, rows standing on planes with their solid ahead; suns straight overhead
@@ -774,7 +848,7 @@ mod tests {
         use crate::scene::{Emitter, Material};
         let (mut mesh, mut rows) = room(10);
         crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.0, 1.3], [1.8, 2.0, 1.3]], Vec3::Z);
-        let mut emitting = |mesh: &mut crate::scene::Mesh, corners: [[f32; 3]; 4], normal: Vec3, m: u32| {
+        let emitting = |mesh: &mut crate::scene::Mesh, corners: [[f32; 3]; 4], normal: Vec3, m: u32| {
             crate::testutil::push_quad(mesh, corners, normal);
             let t = mesh.tri_material.len();
             mesh.tri_material[t - 2..].iter_mut().for_each(|x| *x = m);

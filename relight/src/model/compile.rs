@@ -26,8 +26,11 @@ use std::collections::HashMap;
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::backend::Backend;
+use crate::error::{Error, Result};
 use crate::rows::{Rows, SolidAhead};
 use crate::trace::bvh::Bvh;
+use crate::trace::tree::PlaneRay;
 
 /// A linear operator between rows (or rows and sources) that can skip the rows a sparse
 /// input does not reach: the filter ([`Sparse`]) and the bounce's transport
@@ -314,6 +317,15 @@ pub fn dirt_gather(bvh: &Bvh, x: Vec3, n: Vec3, depth: f32, ahead: SolidAhead, o
 /// largest: a hit within a shorter depth is the first hit of that shorter ray too. At the
 /// largest depth the same bits as [`dirt_gather`] at it alone.
 pub fn dirt_gathers(bvh: &Bvh, x: Vec3, n: Vec3, depths: &[f32], ahead: SolidAhead, on_epsilon: f32, g: &mut [f32]) {
+    let longest = depths.iter().copied().fold(0.0f32, f32::max);
+    dirt_gathers_with(n, depths, ahead, on_epsilon, g, &mut |d| bvh.first_hit_from_plane(x, d, longest).map(|h| h.0));
+}
+
+/// [`dirt_gathers`] with its walks from `hit`: called for each direction that needs one,
+/// in order, with the direction; it answers the hit's distance (m) within the largest
+/// depth. The walks are the caller's, so a device can take them all at once
+/// ([`dirt`]): one pass hands out the directions, a second sums their answers.
+fn dirt_gathers_with(n: Vec3, depths: &[f32], ahead: SolidAhead, on_epsilon: f32, g: &mut [f32], hit: &mut dyn FnMut(Vec3) -> Option<f32>) {
     // q3map2's tangent frame: right = n x up (Quake's Z is glTF's Y), up = right x n.
     let world_up = Vec3::Y;
     let (right, up) = if n.x == 0.0 && n.z == 0.0 && n.y.abs() == 1.0 {
@@ -329,7 +341,7 @@ pub fn dirt_gathers(bvh: &Bvh, x: Vec3, n: Vec3, depths: &[f32], ahead: SolidAhe
     for v in dirt_vectors().iter().chain(std::iter::once(&[0.0, 0.0, 1.0])) {
         let d = right * v[0] + up * v[1] + n * v[2];
         let mut traced = false;
-        let mut hit = None;
+        let mut found = None;
         for (gk, &depth) in g.iter_mut().zip(depths) {
             if on_epsilon > 0.0 && ahead.stops(d, depth, on_epsilon) {
                 *gk += 1.0;
@@ -339,10 +351,10 @@ pub fn dirt_gathers(bvh: &Bvh, x: Vec3, n: Vec3, depths: &[f32], ahead: SolidAhe
             // is occluded at distance 0 in that wall's direction, as q3map2's BSP trace
             // finds it.
             if !traced {
-                hit = bvh.first_hit_from_plane(x, d, longest).map(|h| h.0);
+                found = hit(d);
                 traced = true;
             }
-            if let Some(dist) = hit.filter(|&t| t < depth || depth == longest) {
+            if let Some(dist) = found.filter(|&t| t < depth || depth == longest) {
                 *gk += 1.0 - dist / depth;
             }
         }
@@ -353,19 +365,68 @@ pub fn dirt_gathers(bvh: &Bvh, x: Vec3, n: Vec3, depths: &[f32], ahead: SolidAhe
 /// luxel's mapped neighbours as q3map2 does: in place, row by row of each lightmap (later
 /// luxels see their earlier neighbours already smoothed), over the neighbours with some
 /// dirt. One trace per direction serves every depth. `units_m`: metres per Quake unit.
-pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSettings], units_m: f32) -> Vec<DirtBasis> {
+///
+/// The walks run on `backend` where it has a kernel for them ([`Backend::first_hits`]):
+/// the rays of [`DIRT_CHUNK_ROWS`] rows set up, walked on the device, and summed in each
+/// row's order. Elsewhere each row walks its own (the CPU reference, as before).
+pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSettings], units_m: f32, backend: &mut dyn Backend) -> Result<Vec<DirtBasis>> {
     let depths: Vec<f32> = sets.iter().map(|s| s.depth_units * units_m).collect();
-    let gathered: Vec<Vec<f32>> = (0..rows.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut g = vec![0.0f32; sets.len()];
-            dirt_gathers(bvh, rows.pos[i], rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g);
-            g
-        })
-        .collect();
+    let n = rows.len();
+    // Whether the backend walks first hits (an empty batch answers at no cost).
+    let on_device = backend.first_hits(&[]).is_some();
+    let gathered: Vec<Vec<f32>> = if !on_device {
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut g = vec![0.0f32; sets.len()];
+                dirt_gathers(bvh, rows.pos[i], rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g);
+                g
+            })
+            .collect()
+    } else {
+        let longest = depths.iter().copied().fold(0.0f32, f32::max);
+        let mut gathered = Vec::with_capacity(n);
+        for start in (0..n).step_by(DIRT_CHUNK_ROWS) {
+            let chunk = start..(start + DIRT_CHUNK_ROWS).min(n);
+            // Each row's rays, in the order its gather asks for them.
+            let per_row: Vec<Vec<PlaneRay>> = chunk
+                .clone()
+                .into_par_iter()
+                .map(|i| {
+                    let mut rays = Vec::new();
+                    let mut g = vec![0.0f32; sets.len()];
+                    dirt_gathers_with(rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g, &mut |d| {
+                        rays.push(PlaneRay::new(rows.pos[i], d, longest));
+                        None
+                    });
+                    rays
+                })
+                .collect();
+            let mut first = Vec::with_capacity(per_row.len() + 1);
+            first.push(0usize);
+            per_row.iter().for_each(|r| first.push(first.last().copied().unwrap_or(0) + r.len()));
+            let rays: Vec<PlaneRay> = per_row.into_iter().flatten().collect();
+            let hits = crate::backend::first_hits(backend, bvh, &rays)?;
+            if hits.len() != rays.len() {
+                return Err(Error::Gpu(format!("the dirt's walks gave {} hits for {} rays", hits.len(), rays.len())));
+            }
+            gathered.par_extend(chunk.into_par_iter().enumerate().map(|(k, i)| {
+                let mut g = vec![0.0f32; sets.len()];
+                let mut next = first[k];
+                dirt_gathers_with(rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g, &mut |_| {
+                    let r = next;
+                    next += 1;
+                    hits.get(r).copied().flatten().map(|(t, _)| rays[r].distance(t))
+                });
+                g
+            }));
+        }
+        gathered
+    };
     let mut order: Vec<usize> = (0..rows.len()).collect();
     order.sort_by_key(|&i| (rows.texel[i][0], rows.texel[i][2], rows.texel[i][1]));
-    sets.iter()
+    Ok(sets
+        .iter()
         .enumerate()
         .map(|(k, set)| {
             let mut dirt: Vec<f32> = gathered.iter().map(|g| dirt_factor(set, g[k])).collect();
@@ -382,8 +443,12 @@ pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSetti
             }
             DirtBasis { settings: *set, factor: dirt }
         })
-        .collect()
+        .collect())
 }
+
+/// Rows whose dirt rays go to a device at once (49 rays a row at most, 32 bytes each on
+/// the device: about 100 MB).
+pub const DIRT_CHUNK_ROWS: usize = 65_536;
 
 #[cfg(test)]
 mod tests {
@@ -530,11 +595,11 @@ mod tests {
         let set = |depth_units: f32, scale: f32, gain: f32| DirtSettings { depth_units, scale, gain };
         let sets = [set(32.0, 1.0, 1.0), set(128.0, 1.5, 2.0), set(128.0, 1.0, 1.0)];
         let units_m = 0.02;
-        let all = dirt(&rows, &bvh, &nb, &sets, units_m);
+        let all = dirt(&rows, &bvh, &nb, &sets, units_m, &mut crate::backend::Cpu::new(&rows, &bvh)).unwrap();
         assert_eq!(all.len(), 3);
         for (k, b) in all.iter().enumerate() {
             assert_eq!(b.settings, sets[k]);
-            let alone = dirt(&rows, &bvh, &nb, &sets[k..k + 1], units_m).remove(0);
+            let alone = dirt(&rows, &bvh, &nb, &sets[k..k + 1], units_m, &mut crate::backend::Cpu::new(&rows, &bvh)).unwrap().remove(0);
             if sets[k].depth_units == 128.0 {
                 assert_eq!(b.factor, alone.factor, "setting {k}");
             } else {

@@ -78,6 +78,38 @@ impl Occluder {
 /// How far behind its origin [`Tree::first_hit_from_plane`] starts a ray, m.
 pub const START_BACK_M: f32 = 1e-4;
 
+/// A ray of [`Tree::first_hit_from_plane`] as its walk takes it: from `o` (the caller's
+/// origin pulled back by `back` m) along `d` (the direction times `reach`, the length plus
+/// `back`), the parameter in `(0, 1)`; a face met from behind counts beyond `grace` only.
+/// What a device's walk reads (`shaders/first_hits.wgsl`), set up once on the CPU.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneRay {
+    pub o: Vec3,
+    pub d: Vec3,
+    pub grace: f32,
+    pub reach: f32,
+    pub back: f32,
+}
+
+impl PlaneRay {
+    /// The ray from `o` along the unit `dir`, `length` m.
+    pub fn new(o: Vec3, dir: Vec3, length: f32) -> PlaneRay {
+        let back = START_BACK_M.max(o.abs().max_element() * 8.0 * f32::EPSILON);
+        let reach = length + back;
+        PlaneRay { o: o - dir * back, d: dir * reach, grace: 2.0 * back / reach, reach, back }
+    }
+
+    /// Whether the walk takes a hit on `tri` at parameter `t`.
+    pub fn accepts(&self, tri: &Tri, t: f32) -> bool {
+        t > self.grace || Vec3::from_slice(&tri.e1[..3]).cross(Vec3::from_slice(&tri.e2[..3])).dot(self.d) < 0.0
+    }
+
+    /// The distance from the caller's origin, m, of a hit at parameter `t`.
+    pub fn distance(&self, t: f32) -> f32 {
+        (t * self.reach - self.back).max(0.0)
+    }
+}
+
 impl Tree {
     /// Builds over every non-degenerate triangle of the mesh, with exact hit tests.
     pub fn build(mesh: &Mesh) -> Tree {
@@ -228,12 +260,14 @@ impl Tree {
     /// along `dir`) counts only beyond twice that, so it does not stop at the plane it
     /// leaves. For a face's edge row, which lies on the plane of the wall it meets.
     pub fn first_hit_from_plane(&self, o: Vec3, dir: Vec3, length: f32) -> Option<(f32, u32)> {
-        let back = START_BACK_M.max(o.abs().max_element() * 8.0 * f32::EPSILON);
-        let reach = length + back;
-        let d = dir * reach;
-        let grace = 2.0 * back / reach;
-        self.first_hit_where(o - dir * back, d, 0.0, 1.0, |tri, t| t > grace || Vec3::from_slice(&tri.e1[..3]).cross(Vec3::from_slice(&tri.e2[..3])).dot(d) < 0.0)
-            .map(|(t, tri)| ((t * reach - back).max(0.0), tri))
+        let r = PlaneRay::new(o, dir, length);
+        self.first_hit_of(&r).map(|(t, tri)| (r.distance(t), tri))
+    }
+
+    /// The walk of a [`PlaneRay`]: its parameter in `(0, 1)` at the nearest hit it accepts
+    /// and the mesh's triangle ([`PlaneRay::distance`] makes it a distance).
+    pub fn first_hit_of(&self, r: &PlaneRay) -> Option<(f32, u32)> {
+        self.first_hit_where(r.o, r.d, 0.0, 1.0, |tri, t| r.accepts(tri, t))
     }
 
     /// The first-hit walk: the exact four-wide view's ([`crate::trace::wide::Wide::first_hit`]),

@@ -48,9 +48,12 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::compile::Sparse;
+use crate::backend::Backend;
+use crate::error::Result;
 use crate::rows::Rows;
 use crate::scene::Scene;
 use crate::trace::bvh::Bvh;
+use crate::trace::tree::PlaneRay;
 
 /// A uniform number in [0, 1) from two integers (a 32-bit integer hash).
 pub fn hash01(a: u32, b: u32) -> f32 {
@@ -192,9 +195,11 @@ impl super::compile::Operator for Transport {
 /// square) per hemisphere: the rays land on q3map2's bounce lights ([`pieces`]).
 /// `fast`: the compile's `-fast`, under which a piece reaches no row beyond its
 /// envelope.
-pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast: bool) -> (Transport, GatherStats) {
+/// The rays are walked on `backend` where it has a kernel for first hits
+/// ([`Backend::first_hits`]), else row by row on the CPU (the reference).
+pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast: bool, backend: &mut dyn Backend) -> Result<(Transport, GatherStats)> {
     let pieces = pieces::Pieces::build(scene, rows, fast);
-    let (gather, mut st) = trace(scene, rows, bvh, rays_per_row, |i, tri, p, add| {
+    let (gather, mut st) = trace(scene, rows, bvh, rays_per_row, backend, |i, tri, p, add| {
         match pieces.locate(tri, p) {
             Some(w) if (rows.pos[i] - pieces.origin[w as usize]).length() < pieces.envelope[w as usize] => {
                 add(w, 1.0);
@@ -202,17 +207,24 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast
             }
             _ => false,
         }
-    });
+    })?;
     st.pieces = pieces.len();
-    (Transport { gather, emit: Some(pieces.emit) }, st)
+    Ok((Transport { gather, emit: Some(pieces.emit) }, st))
 }
+
+/// Rays of the transport that go to a device at once.
+pub const DEVICE_RAYS: usize = 1 << 22;
 
 /// The rays of the bounce's transport: `rays_per_row` cosine-weighted rays (rounded up
 /// to a square) from each row, per hemisphere of a two-sided row; a ray from row `i`
 /// that meets the front of a surface (either face of a two-sided one) at point `p` of
 /// triangle `tri` is handed to `land`, which adds its sources with their weights
 /// (each scaled by `1 / rays`) and says whether it found any.
-fn trace<L>(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, land: L) -> (Sparse, GatherStats)
+/// The walks are `backend`'s where it has a kernel for first hits: each chunk of rows hands
+/// out its rays (`gather_row`'s first pass), the device walks them, and each row takes
+/// their answers in its order (the second pass): the same sums as the CPU's walks where
+/// the walks agree.
+fn trace<L>(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, backend: &mut dyn Backend, land: L) -> Result<(Sparse, GatherStats)>
 where
     L: Fn(usize, usize, Vec3, &mut dyn FnMut(u32, f32)) -> bool + Sync,
 {
@@ -220,47 +232,94 @@ where
     let m = s * s;
     let (lo, hi) = scene.mesh.bounds();
     let reach = 2.0 * (hi - lo).length().max(1e-3);
-    let mesh = &scene.mesh;
-    let per_row: Vec<(Vec<(u32, f32)>, u64)> = (0..rows.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut acc: Vec<(u32, f32)> = Vec::new();
-            let mut landed = 0u64;
-            // A two-sided row gathers over both hemispheres, each from its own side.
-            let sides = if rows.two_sided[i] { 2 } else { 1 };
-            for (side, cell) in (0..sides).flat_map(|side| (0..m).map(move |cell| (side, cell))) {
-                let n = if side == 0 { rows.normal[i] } else { -rows.normal[i] };
-                let o = rows.pos[i] + n * rows.sampling.ray_offset;
-                let d = cosine_direction(n, i as u32, cell, s);
-                // A row on another surface's plane (the edge row of a wall under a
-                // ceiling) sees that surface over half its hemisphere, from distance 0.
-                let Some((dist, tri)) = bvh.first_hit_from_plane(o, d, reach) else { continue };
-                let tri = tri as usize;
-                let [ia, ib, ic] = mesh.triangles[tri].map(|v| v as usize);
-                let (a, b, c) = (mesh.positions[ia], mesh.positions[ib], mesh.positions[ic]);
-                let mat = &scene.materials[mesh.tri_material[tri] as usize];
-                if (b - a).cross(c - a).dot(d) >= 0.0 && !mat.double_sided {
-                    continue; // the back of a one-sided surface (q3map2's bounce lights of a
-                              // two-sided shader emit from both faces)
-                }
-                let p = o + d * dist;
-                let mut add = |j: u32, w: f32| {
-                    let w = w / m as f32;
-                    match acc.iter_mut().find(|e| e.0 == j) {
-                        Some(e) => e.1 += w,
-                        None => acc.push((j, w)),
-                    }
-                };
-                landed += land(i, tri, p, &mut add) as u64;
+    let n = rows.len();
+    let per_row: Vec<(Vec<(u32, f32)>, u64)> = if backend.first_hits(&[]).is_none() {
+        (0..n).into_par_iter().map(|i| gather_row(scene, rows, i, s, &land, &mut |o, d| bvh.first_hit_from_plane(o, d, reach))).collect()
+    } else {
+        let chunk_rows = (DEVICE_RAYS / (2 * m)).max(1);
+        let mut out = Vec::with_capacity(n);
+        for start in (0..n).step_by(chunk_rows) {
+            let chunk = start..(start + chunk_rows).min(n);
+            // Each row's rays, in the order its gather walks them.
+            let handed: Vec<Vec<PlaneRay>> = chunk
+                .clone()
+                .into_par_iter()
+                .map(|i| {
+                    let mut rays = Vec::new();
+                    gather_row(scene, rows, i, s, &land, &mut |o, d| {
+                        rays.push(PlaneRay::new(o, d, reach));
+                        None
+                    });
+                    rays
+                })
+                .collect();
+            let mut first = Vec::with_capacity(handed.len() + 1);
+            first.push(0usize);
+            handed.iter().for_each(|r| first.push(first.last().copied().unwrap_or(0) + r.len()));
+            let rays: Vec<PlaneRay> = handed.into_iter().flatten().collect();
+            let hits = crate::backend::first_hits(backend, bvh, &rays)?;
+            if hits.len() != rays.len() {
+                return Err(crate::error::Error::Gpu(format!("the bounce's walks gave {} hits for {} rays", hits.len(), rays.len())));
             }
-            (acc, landed)
-        })
-        .collect();
+            out.par_extend(chunk.into_par_iter().enumerate().map(|(k, i)| {
+                let mut next = first[k];
+                gather_row(scene, rows, i, s, &land, &mut |_, _| {
+                    let r = next;
+                    next += 1;
+                    hits.get(r).copied().flatten().map(|(t, tri)| (rays[r].distance(t), tri))
+                })
+            }));
+        }
+        out
+    };
     let mut k = Sparse::empty();
-    let mut st = GatherStats { rows: rows.len(), rays_per_row: m, rays: (rows.len() * m) as u64, landed: 0, pieces: 0 };
+    let mut st = GatherStats { rows: n, rays_per_row: m, rays: (n * m) as u64, landed: 0, pieces: 0 };
     for (acc, landed) in per_row {
         k.push_row(acc);
         st.landed += landed;
     }
-    (k, st)
+    Ok((k, st))
+}
+
+/// Row `i`'s gather: its `s x s` cosine-weighted rays per hemisphere, each walked by
+/// `hit(origin, unit direction)` (the distance and the mesh's triangle of the first hit
+/// within the scene's reach, [`crate::trace::tree::Tree::first_hit_from_plane`]), those
+/// that meet the front of a surface landed by `land`; returns the row's sources with
+/// their weights and the rays that landed.
+fn gather_row<L>(scene: &Scene, rows: &Rows, i: usize, s: usize, land: &L, hit: &mut dyn FnMut(Vec3, Vec3) -> Option<(f32, u32)>) -> (Vec<(u32, f32)>, u64)
+where
+    L: Fn(usize, usize, Vec3, &mut dyn FnMut(u32, f32)) -> bool + Sync,
+{
+    let m = s * s;
+    let mesh = &scene.mesh;
+    let mut acc: Vec<(u32, f32)> = Vec::new();
+    let mut landed = 0u64;
+    // A two-sided row gathers over both hemispheres, each from its own side.
+    let sides = if rows.two_sided[i] { 2 } else { 1 };
+    for (side, cell) in (0..sides).flat_map(|side| (0..m).map(move |cell| (side, cell))) {
+        let n = if side == 0 { rows.normal[i] } else { -rows.normal[i] };
+        let o = rows.pos[i] + n * rows.sampling.ray_offset;
+        let d = cosine_direction(n, i as u32, cell, s);
+        // A row on another surface's plane (the edge row of a wall under a ceiling) sees
+        // that surface over half its hemisphere, from distance 0.
+        let Some((dist, tri)) = hit(o, d) else { continue };
+        let tri = tri as usize;
+        let Some(&[ia, ib, ic]) = mesh.triangles.get(tri).map(|t| t.map(|v| v as usize)).as_ref() else { continue };
+        let (a, b, c) = (mesh.positions[ia], mesh.positions[ib], mesh.positions[ic]);
+        let mat = &scene.materials[mesh.tri_material[tri] as usize];
+        if (b - a).cross(c - a).dot(d) >= 0.0 && !mat.double_sided {
+            continue; // the back of a one-sided surface (q3map2's bounce lights of a
+                      // two-sided shader emit from both faces)
+        }
+        let p = o + d * dist;
+        let mut add = |j: u32, w: f32| {
+            let w = w / m as f32;
+            match acc.iter_mut().find(|e| e.0 == j) {
+                Some(e) => e.1 += w,
+                None => acc.push((j, w)),
+            }
+        };
+        landed += land(i, tri, p, &mut add) as u64;
+    }
+    (acc, landed)
 }
