@@ -55,6 +55,64 @@ pub trait Backend {
     }
 }
 
+/// Rays of [`gather_rows`] that go to a device at once.
+pub const DEVICE_RAYS: usize = 1 << 22;
+
+/// The walk a row's gather asks for: a ray set up by [`PlaneRay::new`] in, the distance
+/// (m, from the ray's own origin) and the mesh's triangle of its first hit out.
+pub type Walk<'a> = dyn FnMut(PlaneRay) -> Option<(f32, u32)> + 'a;
+
+/// Every row's gather, `gather(i, walk)` for `i < n`, its rays walked on `backend` where
+/// it has a kernel for first hits, else on the CPU row by row
+/// ([`crate::trace::tree::Tree::first_hit_from_plane`]'s walk: the CPU reference). On the
+/// device each row's gather runs twice: first with a walk that keeps the rays it is
+/// handed (and answers none), then, once the device has walked the rays of
+/// `DEVICE_RAYS / max_rays` rows at once, with one that answers them in the same order.
+/// So a gather must ask for the same rays whatever the answers (the dirt's and the
+/// bounce's do).
+pub fn gather_rows<T: Send>(backend: &mut dyn Backend, bvh: &Bvh, n: usize, max_rays: usize, gather: impl Fn(usize, &mut Walk<'_>) -> T + Sync) -> Result<Vec<T>> {
+    use rayon::prelude::*;
+    let cpu = |r: PlaneRay| bvh.first_hit_of(&r).map(|(t, tri)| (r.distance(t), tri));
+    // Whether the backend walks first hits (an empty batch answers at no cost).
+    if backend.first_hits(&[]).is_none() {
+        return Ok((0..n).into_par_iter().map(|i| gather(i, &mut |r| cpu(r))).collect());
+    }
+    let chunk_rows = (DEVICE_RAYS / max_rays.max(1)).max(1);
+    let mut out = Vec::with_capacity(n);
+    for start in (0..n).step_by(chunk_rows) {
+        let chunk = start..(start + chunk_rows).min(n);
+        let handed: Vec<Vec<PlaneRay>> = chunk
+            .clone()
+            .into_par_iter()
+            .map(|i| {
+                let mut rays = Vec::new();
+                gather(i, &mut |r| {
+                    rays.push(r);
+                    None
+                });
+                rays
+            })
+            .collect();
+        let mut first = Vec::with_capacity(handed.len() + 1);
+        first.push(0usize);
+        handed.iter().for_each(|r| first.push(first.last().copied().unwrap_or(0) + r.len()));
+        let rays: Vec<PlaneRay> = handed.into_iter().flatten().collect();
+        let hits = first_hits(backend, bvh, &rays)?;
+        if hits.len() != rays.len() {
+            return Err(crate::error::Error::Gpu(format!("the device gave {} first hits for {} rays", hits.len(), rays.len())));
+        }
+        out.par_extend(chunk.into_par_iter().enumerate().map(|(k, i)| {
+            let mut next = first[k];
+            gather(i, &mut |_| {
+                let r = next;
+                next += 1;
+                hits.get(r).copied().flatten().map(|(t, tri)| (rays[r].distance(t), tri))
+            })
+        }));
+    }
+    Ok(out)
+}
+
 /// Each ray's first hit on the mesh: the backend's kernel where it has one, else
 /// [`crate::trace::tree::Tree::first_hit_of`] on the CPU, the rays in parallel.
 pub fn first_hits(backend: &mut dyn Backend, bvh: &Bvh, rays: &[PlaneRay]) -> Result<Vec<FirstHit>> {

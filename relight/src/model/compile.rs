@@ -27,7 +27,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::backend::Backend;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::rows::{Rows, SolidAhead};
 use crate::trace::bvh::Bvh;
 use crate::trace::tree::PlaneRay;
@@ -366,63 +366,17 @@ fn dirt_gathers_with(n: Vec3, depths: &[f32], ahead: SolidAhead, on_epsilon: f32
 /// luxels see their earlier neighbours already smoothed), over the neighbours with some
 /// dirt. One trace per direction serves every depth. `units_m`: metres per Quake unit.
 ///
-/// The walks run on `backend` where it has a kernel for them ([`Backend::first_hits`]):
-/// the rays of [`DIRT_CHUNK_ROWS`] rows set up, walked on the device, and summed in each
-/// row's order. Elsewhere each row walks its own (the CPU reference, as before).
+/// The walks run on `backend` where it has a kernel for them
+/// ([`crate::backend::gather_rows`]), else row by row on the CPU (the reference).
 pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSettings], units_m: f32, backend: &mut dyn Backend) -> Result<Vec<DirtBasis>> {
     let depths: Vec<f32> = sets.iter().map(|s| s.depth_units * units_m).collect();
     let n = rows.len();
-    // Whether the backend walks first hits (an empty batch answers at no cost).
-    let on_device = backend.first_hits(&[]).is_some();
-    let gathered: Vec<Vec<f32>> = if !on_device {
-        (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let mut g = vec![0.0f32; sets.len()];
-                dirt_gathers(bvh, rows.pos[i], rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g);
-                g
-            })
-            .collect()
-    } else {
-        let longest = depths.iter().copied().fold(0.0f32, f32::max);
-        let mut gathered = Vec::with_capacity(n);
-        for start in (0..n).step_by(DIRT_CHUNK_ROWS) {
-            let chunk = start..(start + DIRT_CHUNK_ROWS).min(n);
-            // Each row's rays, in the order its gather asks for them.
-            let per_row: Vec<Vec<PlaneRay>> = chunk
-                .clone()
-                .into_par_iter()
-                .map(|i| {
-                    let mut rays = Vec::new();
-                    let mut g = vec![0.0f32; sets.len()];
-                    dirt_gathers_with(rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g, &mut |d| {
-                        rays.push(PlaneRay::new(rows.pos[i], d, longest));
-                        None
-                    });
-                    rays
-                })
-                .collect();
-            let mut first = Vec::with_capacity(per_row.len() + 1);
-            first.push(0usize);
-            per_row.iter().for_each(|r| first.push(first.last().copied().unwrap_or(0) + r.len()));
-            let rays: Vec<PlaneRay> = per_row.into_iter().flatten().collect();
-            let hits = crate::backend::first_hits(backend, bvh, &rays)?;
-            if hits.len() != rays.len() {
-                return Err(Error::Gpu(format!("the dirt's walks gave {} hits for {} rays", hits.len(), rays.len())));
-            }
-            gathered.par_extend(chunk.into_par_iter().enumerate().map(|(k, i)| {
-                let mut g = vec![0.0f32; sets.len()];
-                let mut next = first[k];
-                dirt_gathers_with(rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g, &mut |_| {
-                    let r = next;
-                    next += 1;
-                    hits.get(r).copied().flatten().map(|(t, _)| rays[r].distance(t))
-                });
-                g
-            }));
-        }
-        gathered
-    };
+    let longest = depths.iter().copied().fold(0.0f32, f32::max);
+    let gathered: Vec<Vec<f32>> = crate::backend::gather_rows(backend, bvh, n, DIRT_RAYS, |i, walk| {
+        let mut g = vec![0.0f32; sets.len()];
+        dirt_gathers_with(rows.normal[i], &depths, rows.solid_ahead[i], rows.sampling.on_epsilon, &mut g, &mut |d| walk(PlaneRay::new(rows.pos[i], d, longest)).map(|h| h.0));
+        g
+    })?;
     let mut order: Vec<usize> = (0..rows.len()).collect();
     order.sort_by_key(|&i| (rows.texel[i][0], rows.texel[i][2], rows.texel[i][1]));
     Ok(sets
@@ -446,9 +400,8 @@ pub fn dirt(rows: &Rows, bvh: &Bvh, nb: &[Vec<(u32, i8, i8)>], sets: &[DirtSetti
         .collect())
 }
 
-/// Rows whose dirt rays go to a device at once (49 rays a row at most, 32 bytes each on
-/// the device: about 100 MB).
-pub const DIRT_CHUNK_ROWS: usize = 65_536;
+/// Rays of a row's dirt gather at most: q3map2's 48 directions and the normal.
+const DIRT_RAYS: usize = 49;
 
 #[cfg(test)]
 mod tests {

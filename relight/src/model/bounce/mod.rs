@@ -45,7 +45,6 @@
 pub mod pieces;
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use super::compile::Sparse;
 use crate::backend::Backend;
@@ -212,18 +211,14 @@ pub fn operator(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, fast
     Ok((Transport { gather, emit: Some(pieces.emit) }, st))
 }
 
-/// Rays of the transport that go to a device at once.
-pub const DEVICE_RAYS: usize = 1 << 22;
-
 /// The rays of the bounce's transport: `rays_per_row` cosine-weighted rays (rounded up
 /// to a square) from each row, per hemisphere of a two-sided row; a ray from row `i`
 /// that meets the front of a surface (either face of a two-sided one) at point `p` of
 /// triangle `tri` is handed to `land`, which adds its sources with their weights
 /// (each scaled by `1 / rays`) and says whether it found any.
-/// The walks are `backend`'s where it has a kernel for first hits: each chunk of rows hands
-/// out its rays (`gather_row`'s first pass), the device walks them, and each row takes
-/// their answers in its order (the second pass): the same sums as the CPU's walks where
-/// the walks agree.
+/// The walks are `backend`'s where it has a kernel for first hits
+/// ([`crate::backend::gather_rows`]): the same sums as the CPU's walks where the walks
+/// agree.
 fn trace<L>(scene: &Scene, rows: &Rows, bvh: &Bvh, rays_per_row: usize, backend: &mut dyn Backend, land: L) -> Result<(Sparse, GatherStats)>
 where
     L: Fn(usize, usize, Vec3, &mut dyn FnMut(u32, f32)) -> bool + Sync,
@@ -233,45 +228,8 @@ where
     let (lo, hi) = scene.mesh.bounds();
     let reach = 2.0 * (hi - lo).length().max(1e-3);
     let n = rows.len();
-    let per_row: Vec<(Vec<(u32, f32)>, u64)> = if backend.first_hits(&[]).is_none() {
-        (0..n).into_par_iter().map(|i| gather_row(scene, rows, i, s, &land, &mut |o, d| bvh.first_hit_from_plane(o, d, reach))).collect()
-    } else {
-        let chunk_rows = (DEVICE_RAYS / (2 * m)).max(1);
-        let mut out = Vec::with_capacity(n);
-        for start in (0..n).step_by(chunk_rows) {
-            let chunk = start..(start + chunk_rows).min(n);
-            // Each row's rays, in the order its gather walks them.
-            let handed: Vec<Vec<PlaneRay>> = chunk
-                .clone()
-                .into_par_iter()
-                .map(|i| {
-                    let mut rays = Vec::new();
-                    gather_row(scene, rows, i, s, &land, &mut |o, d| {
-                        rays.push(PlaneRay::new(o, d, reach));
-                        None
-                    });
-                    rays
-                })
-                .collect();
-            let mut first = Vec::with_capacity(handed.len() + 1);
-            first.push(0usize);
-            handed.iter().for_each(|r| first.push(first.last().copied().unwrap_or(0) + r.len()));
-            let rays: Vec<PlaneRay> = handed.into_iter().flatten().collect();
-            let hits = crate::backend::first_hits(backend, bvh, &rays)?;
-            if hits.len() != rays.len() {
-                return Err(crate::error::Error::Gpu(format!("the bounce's walks gave {} hits for {} rays", hits.len(), rays.len())));
-            }
-            out.par_extend(chunk.into_par_iter().enumerate().map(|(k, i)| {
-                let mut next = first[k];
-                gather_row(scene, rows, i, s, &land, &mut |_, _| {
-                    let r = next;
-                    next += 1;
-                    hits.get(r).copied().flatten().map(|(t, tri)| (rays[r].distance(t), tri))
-                })
-            }));
-        }
-        out
-    };
+    let max_rays = if rows.two_sided.iter().any(|&t| t) { 2 * m } else { m };
+    let per_row = crate::backend::gather_rows(backend, bvh, n, max_rays, |i, walk| gather_row(scene, rows, i, s, &land, &mut |o, d| walk(PlaneRay::new(o, d, reach))))?;
     let mut k = Sparse::empty();
     let mut st = GatherStats { rows: n, rays_per_row: m, rays: (n * m) as u64, landed: 0, pieces: 0 };
     for (acc, landed) in per_row {
