@@ -52,6 +52,38 @@ fn slab_shadow(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
     return slab(grown, o, inv, t_max);
 }
 
+// `slab_shadow` as the CPU's four-wide walk decides it for any ray (`Node4::crossed` on
+// the node's shadow box: per axis x, y, z, `near = near.max(t0.min(t1))` and `far =
+// far.min(t0.max(t1))` from 0 and `t_max`, Rust's minimum and maximum, which drop a NaN):
+// where a component of `d` is zero its products are infinite or NaN, which WGSL leaves to
+// the implementation, so they are spelled out (`Ext`, below). `finite`: no component of
+// `d` is zero; then the plain test.
+fn slab_shadow_any(node: Node, o: vec3<f32>, d: vec3<f32>, inv: vec3<f32>, neg: vec3<bool>, finite: bool, t_max: f32) -> bool {
+    if (finite) {
+        return slab_shadow(node, o, inv, t_max);
+    }
+    let ext = node.max - node.min;
+    let pad = vec3<f32>(2.0 * EDGE_SLACK * max(max(max(ext.x, ext.y), ext.z), 0.0));
+    let lo = node.min - pad;
+    let hi = node.max + pad;
+    var near = Ext(0.0, 0.0);
+    var far = Ext(0.0, t_max);
+    for (var a = 0u; a < 3u; a = a + 1u) {
+        var t0: Ext;
+        var t1: Ext;
+        if (d[a] == 0.0) {
+            t0 = ext_over_zero(lo[a] - o[a], neg[a]);
+            t1 = ext_over_zero(hi[a] - o[a], neg[a]);
+        } else {
+            t0 = Ext(0.0, (lo[a] - o[a]) * inv[a]);
+            t1 = Ext(0.0, (hi[a] - o[a]) * inv[a]);
+        }
+        near = ext_fmax(near, ext_fmin(t0, t1));
+        far = ext_fmin(far, ext_fmax(t0, t1));
+    }
+    return !ext_lt(far, near);
+}
+
 // Moeller-Trumbore, two-sided, barycentric coordinates within [-slack, 1 + slack];
 // returns the ray parameter or -1.
 fn intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, slack: f32) -> f32 {
@@ -82,6 +114,8 @@ fn occluded(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
         return false;
     }
     let inv = 1.0 / d;
+    let neg = signs(d);
+    let finite = all(d != vec3<f32>(0.0));
     var stack: array<u32, 48>;
     var sp = 1u;
     stack[0] = 0u;
@@ -89,7 +123,7 @@ fn occluded(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> bool {
         sp = sp - 1u;
         let here = stack[sp];
         let node = nodes[here];
-        if (!slab_shadow(node, o, inv, t_max)) {
+        if (!slab_shadow_any(node, o, d, inv, neg, finite, t_max)) {
             continue;
         }
         if (node.count > 0u) {
@@ -135,6 +169,27 @@ fn ext_pick(f: Ext, t: Ext, c: bool) -> Ext {
         return t;
     }
     return f;
+}
+
+// Rust's `f32::min` and `f32::max` for `Ext`: a NaN gives way to the other operand.
+fn ext_fmin(a: Ext, b: Ext) -> Ext {
+    if (a.c == 2.0) {
+        return b;
+    }
+    if (b.c == 2.0) {
+        return a;
+    }
+    return ext_pick(b, a, ext_lt(a, b));
+}
+
+fn ext_fmax(a: Ext, b: Ext) -> Ext {
+    if (a.c == 2.0) {
+        return b;
+    }
+    if (b.c == 2.0) {
+        return a;
+    }
+    return ext_pick(b, a, ext_lt(b, a));
 }
 
 // `a * (1 / d)` for a finite `a` and a zero `d` of sign `neg`: NaN at `a = 0`.

@@ -83,6 +83,8 @@ fn occluded_pieces(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, leaf_eps:
         return false;
     }
     let inv = 1.0 / d;
+    let neg = signs(d);
+    let finite = all(d != vec3<f32>(0.0));
     let len = length(d);
     var stack: array<u32, 48>;
     var sp = 1u;
@@ -91,7 +93,7 @@ fn occluded_pieces(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, leaf_eps:
         sp = sp - 1u;
         let here = stack[sp];
         let node = nodes[here];
-        if (!slab_shadow(node, o, inv, t_max)) {
+        if (!slab_shadow_any(node, o, d, inv, neg, finite, t_max)) {
             continue;
         }
         if (node.count > 0u) {

@@ -1,19 +1,10 @@
 // Sun visibility bits: one invocation per (row, direction of the batch; the direction in z). Needs bvh.wgsl
-// prepended. The CPU reference is `trace::visibility::sun_visible_from` (through
+// and sun_rays.wgsl prepended. The CPU reference is `trace::visibility::sun_visible_from` (through
 // `trace_sun`): the sun is in front of the row (its normal as it faces the sun), not
 // exactly along a wall plane the row stands on with its brush ahead, and the ray from the
 // row's shadow origin towards the sun, as long as the scene, first meets a sky triangle
 // of the mesh (or nothing, in a scene without sky surfaces). Bit i of word
 // dir * words + i / 32 is set when the row sees the sun.
-
-// A row as the sun's rays need it: `Row` of rows.wgsl with `SolidAhead`'s bits in the
-// spare lane (relight/src/rows/mod.rs).
-struct SunRow {
-    pos: vec3<f32>,
-    ahead: u32,
-    normal: vec3<f32>,
-    two_sided: f32,
-}
 
 struct SunParams {
     n: u32,
@@ -44,12 +35,6 @@ struct SunParams {
 @group(0) @binding(5) var<storage, read> dirs: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> bits: array<atomic<u32>>;
 
-// `SolidAhead::along`: the direction runs along one of the planes of the row's solid
-// (+x, +y, -z in glTF axes), within f32 rounding.
-fn along(ahead: u32, w: vec3<f32>) -> bool {
-    return ((ahead & 1u) != 0u && abs(w.x) < 1e-6) || ((ahead & 2u) != 0u && abs(w.y) < 1e-6) || ((ahead & 4u) != 0u && abs(-w.z) < 1e-6);
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.y * sp.stride + gid.x;
@@ -57,18 +42,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (i >= sp.n || j >= sp.dirs) {
         return;
     }
-    let r = rows[i];
     let w = dirs[j].xyz;
-    var n = r.normal;
-    if (r.two_sided > 0.5 && dot(n, w) < 0.0) {
-        n = -n;
-    }
-    if (!(dot(n, w) > 0.0) || (sp.on_epsilon > 0.0 && along(r.ahead, w))) {
+    let start = sun_start(rows[i], w, sp.shadow_offset, sp.on_epsilon);
+    if (!start.ok) {
         return;
     }
-    let o = r.pos + n * sp.shadow_offset;
     // The signs from the direction (the ray is the direction times a length).
-    let hit = first_hit_after(o, w * sp.reach, signs(w), sp.t_min, 1.0, -1.0);
+    let hit = first_hit_after(start.o, w * sp.reach, signs(w), sp.t_min, 1.0, -1.0);
     var seen = sp.open != 0u;
     if (hit.tri != NO_HIT) {
         seen = sky[hit.tri] != 0u;

@@ -47,6 +47,14 @@ pub trait Backend {
     fn sun_bits(&mut self, _rows: &Rows, _dirs: &[Vec3], _sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
         None
     }
+    /// The sky light's visibility bits of `rows` towards each of `dirs` (its suns, unit),
+    /// `sky` flagging the mesh's sky triangles
+    /// ([`crate::trace::visibility::sky_visible_from`]'s answers), where the backend has a
+    /// kernel for them (wgpu: `shaders/sky.wgsl`); `None`: the CPU reference runs
+    /// ([`crate::model::sky::basis`]).
+    fn sky_bits(&mut self, _rows: &Rows, _dirs: &[Vec3], _sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
+        None
+    }
     /// Each ray's first hit on the mesh ([`crate::trace::tree::Tree::first_hit_of`]: the walk's parameter and
     /// the mesh's triangle) where the backend has a kernel for them (wgpu:
     /// `shaders/first_hits.wgsl`); `None`: the CPU walks them ([`first_hits`]).

@@ -652,14 +652,17 @@ fn plan_terms(opts: &Options, scene: &Scene) -> (TermPlan, String) {
 /// Traces what the model needs of the geometry for the terms `plan` considers; `st`
 /// records each one's time.
 /// `emitters`: the surface lights' patches, made before any subdivision. `backend`: the
-/// run's, which builds the surface lights' basis where it has a kernel for it.
+/// run's, which traces the sky's and the surface lights' bases, the dirt's and the
+/// bounce's rays where it has kernels for them.
 #[allow(clippy::too_many_arguments)]
 fn build_bases(scene: &Scene, emitters: (Vec<model::surface::Group>, Vec<model::surface::Patch>), rows: &Rows, bvh: &Bvh, plan: &TermPlan, bounce_rays: usize, with_gathered: bool, backend: &mut dyn Backend, st: &mut Stages) -> Result<Bases> {
     let sky_triangles: Vec<bool> = scene.mesh.tri_material.iter().map(|&m| scene.materials[m as usize].sky).collect();
-    let sky = (plan.sky != Optional::Off).then(|| {
+    let sky = if plan.sky != Optional::Off {
         let it = scene.materials.iter().flat_map(|m| m.sky_lights.iter()).map(|s| s.1).max().unwrap_or(8);
-        model::sky::basis(rows, bvh, &sky_triangles, &model::sky::directions(it))
-    });
+        Some(model::sky::basis_on(backend, rows, bvh, &sky_triangles, &model::sky::directions(it))?)
+    } else {
+        None
+    };
     st.done("bases: sky");
     let surfaces = if plan.surfaces != Optional::Off { surface_basis(backend, emitters, scene, rows, bvh, plan.fast_area)? } else { model::surface::SurfaceBasis { offsets: vec![0; rows.len() + 1], ..Default::default() } };
     st.done("bases: surfaces");

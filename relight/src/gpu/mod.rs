@@ -5,7 +5,8 @@
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
 //! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]), the
-//! sun's visibility `shaders/sun.wgsl` ([`sun`]), the first hits of the dirt's and the
+//! sun's visibility `shaders/sun.wgsl` and the sky light's `shaders/sky.wgsl` ([`sun`]),
+//! the first hits of the dirt's and the
 //! bounce's rays `shaders/first_hits.wgsl` ([`first_hits`]); every shadow ray walks
 //! `shaders/shadow.wgsl`. The target projection's kernel is
 //! `shaders/target.wgsl`; the light-tracing estimator's is `shaders/light_tracing.wgsl`
@@ -300,6 +301,8 @@ struct Pipelines {
     surface: wgpu::ComputePipeline,
     /// The sun's visibility ([`sun`]).
     sun: wgpu::ComputePipeline,
+    /// The sky light's visibility, both passes ([`sun`]).
+    sky: wgpu::ComputePipeline,
     /// First hits of rays set up on the CPU ([`first_hits`]).
     first_hits: wgpu::ComputePipeline,
 }
@@ -310,6 +313,7 @@ impl Pipelines {
         let bvh = include_str!("../../../shaders/bvh.wgsl");
         let shadow = include_str!("../../../shaders/shadow.wgsl");
         let lights = include_str!("../../../shaders/lights.wgsl");
+        let sun_rays = include_str!("../../../shaders/sun_rays.wgsl");
         let make = |label: &str, src: String, entry: &str, layout: Option<&wgpu::PipelineLayout>| {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(src.into()) });
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -343,7 +347,8 @@ impl Pipelines {
             target: make("target", include_str!("../../../shaders/target.wgsl").to_string(), "main", None),
             trace: make("trace", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/trace.wgsl")), "main", None),
             surface: make("surface lights", format!("{rows}\n{bvh}\n{shadow}\n{}", include_str!("../../../shaders/surface_lights.wgsl")), "main", None),
-            sun: make("sun", format!("{bvh}\n{}", include_str!("../../../shaders/sun.wgsl")), "main", None),
+            sun: make("sun", format!("{bvh}\n{sun_rays}\n{}", include_str!("../../../shaders/sun.wgsl")), "main", None),
+            sky: make("sky", format!("{bvh}\n{shadow}\n{sun_rays}\n{}", include_str!("../../../shaders/sky.wgsl")), "main", None),
             first_hits: make("first hits", format!("{bvh}\n{}", include_str!("../../../shaders/first_hits.wgsl")), "main", None),
             irradiance: make("light irradiance", format!("{rows}\n{}\n{lights}", include_str!("../../../shaders/light_irradiance.wgsl")), "main", None),
             gradient: make("light gradient", gradient_src.clone(), "main", Some(&gradient_layout)),
@@ -630,6 +635,9 @@ impl Backend for GpuBackend {
     fn sun_bits(&mut self, rows: &Rows, dirs: &[Vec3], sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
         Some(self.try_sun_bits(rows, dirs, sky))
     }
+    fn sky_bits(&mut self, rows: &Rows, dirs: &[Vec3], sky: &[bool]) -> Option<Result<Vec<Vec<u32>>>> {
+        Some(self.try_sky_bits(rows, dirs, sky))
+    }
     fn first_hits(&mut self, rays: &[crate::trace::tree::PlaneRay]) -> Option<Result<Vec<crate::backend::FirstHit>>> {
         Some(self.try_first_hits(rays))
     }
@@ -834,6 +842,62 @@ mod tests {
         let floor_lit = (0..rows.len()).filter(|&i| rows.normal[i].y > 0.9 && rows.pos[i].y < 0.01).filter(|&i| up[0][i / 32] >> (i % 32) & 1 == 1).count();
         let floor = (0..rows.len()).filter(|&i| rows.normal[i].y > 0.9 && rows.pos[i].y < 0.01).count();
         assert!(floor_lit > 0 && floor_lit < floor, "{floor_lit} of {floor} floor rows lit by the overhead sun");
+    }
+
+    /// The sky light's visibility on the device is the CPU's (`sky_visible_from`) bit for
+    /// bit, and so the basis: a room whose ceiling is sky over half its width, a pillar
+    /// that shadows the floor, an opaque slab above the sky (a ray that crosses the sky
+    /// and then meets it is stopped, as q3map2 traces the whole way), a third of the rows
+    /// two-sided, rows standing on planes with their solid ahead; q3map2's sky suns (the
+    /// first of each ring and the last, straight up, along axes) and a sun along a wall;
+    /// through the mesh's tree and through q3map2's pieces; and the open scene.
+    #[test]
+    fn wgpu_traces_the_sky_as_the_cpu_does() {
+        use crate::trace::bvh::Occluder;
+        let (mut mesh, mut rows) = room(8);
+        crate::testutil::push_quad(&mut mesh, [[1.8, 0.0, 1.3], [2.2, 0.0, 1.3], [2.2, 2.5, 1.3], [1.8, 2.5, 1.3]], Vec3::Z);
+        crate::testutil::push_quad(&mut mesh, [[0.5, 3.0, 0.5], [1.5, 3.0, 0.5], [1.5, 3.0, 2.5], [0.5, 3.0, 2.5]], -Vec3::Y);
+        rows.sampling.inhibit = 0.01;
+        rows.sampling.on_epsilon = 0.001;
+        rows.two_sided = (0..rows.len()).map(|i| i % 3 == 0).collect();
+        rows.solid_ahead = (0..rows.len()).map(|i| crate::rows::SolidAhead((i % 8) as u8)).collect();
+        let sky: Vec<bool> = mesh.triangles.iter().map(|t| t.iter().all(|&v| mesh.positions[v as usize].y == 2.5 && mesh.positions[v as usize].x <= 2.0)).collect();
+        assert!(sky.iter().any(|&k| k) && !sky.iter().all(|&k| k));
+        let mut dirs = crate::model::sky::directions(4);
+        assert!(dirs.iter().any(|w| w.x == 0.0 && w.z == 0.0), "q3map2's sky suns end straight up");
+        dirs.push(Vec3::new(0.0, 0.8, 0.6));
+        for pieces in [false, true] {
+            let mut bvh = Bvh::build(&mesh);
+            if pieces {
+                // q3map2's pieces of the opaque surfaces (the sky is not one).
+                let mut opaque = mesh.clone();
+                opaque.triangles = mesh.triangles.iter().zip(&sky).filter(|(_, &k)| !k).map(|(t, _)| *t).collect();
+                let c = crate::testutil::casters_of(&opaque, 40.0, 30.0);
+                bvh.shadow = Some(Box::new(crate::trace::pieces::Shadow::new(&c, glam::DVec3::ZERO, q3gltf_convert::units::DEFAULT_SCALE)));
+            }
+            let mut gpu = GpuBackend::new(Context::new().expect("a wgpu adapter (install mesa-vulkan-drivers)"), &rows, &bvh).expect("a wgpu adapter (install mesa-vulkan-drivers)");
+            for open in [false, true] {
+                let what = format!("pieces {pieces}, open {open}");
+                let sky = if open { vec![false; sky.len()] } else { sky.clone() };
+                let got = gpu.sky_bits(&rows, &dirs, &sky).expect("wgpu has a kernel").unwrap();
+                assert_eq!(got.len(), dirs.len());
+                let (mut seen, mut stopped) = (0, 0);
+                for (k, &w) in dirs.iter().enumerate() {
+                    for i in 0..rows.len() {
+                        let n = rows.facing(i, w);
+                        let want = crate::trace::visibility::sky_visible_from(&bvh, rows.pos[i], n, w, &rows.sampling, &sky, open, rows.solid_ahead[i], &mut [&mut Occluder::default()], &mut Occluder::default());
+                        assert_eq!(got[k][i / 32] >> (i % 32) & 1 == 1, want, "{what}, sun {w}, row {i} at {}", rows.pos[i]);
+                        seen += want as usize;
+                        stopped += (!want && n.dot(w) > 0.0) as usize;
+                    }
+                }
+                assert!(seen > 0 && stopped > 0, "{what}: {seen} rays see the sky, {stopped} do not");
+                let cpu = crate::model::sky::basis(&rows, &bvh, &sky, &dirs);
+                let dev = crate::model::sky::basis_on(&mut gpu, &rows, &bvh, &sky, &dirs).unwrap();
+                assert_eq!(cpu.d, dev.d, "{what}");
+                assert_eq!(cpu.mean_cos_up, dev.mean_cos_up);
+            }
+        }
     }
 
     /// The device builds the surface lights' basis as the CPU does: the same rays (but at

@@ -19,6 +19,8 @@
 
 use glam::Vec3;
 
+use crate::backend::Backend;
+use crate::error::Result;
 use crate::rows::Rows;
 use crate::trace::bvh::Bvh;
 
@@ -61,8 +63,52 @@ pub fn basis(rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> SkyBasis {
         },
     );
     let d = per_row.into_iter().map(|(s, _)| s / n).collect();
-    let mean_cos_up = dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / n;
-    SkyBasis { d, directions: dirs.to_vec(), mean_cos_up }
+    SkyBasis { d, directions: dirs.to_vec(), mean_cos_up: mean_cos_up(dirs) }
+}
+
+/// The basis for `dirs` on `backend` where it has a kernel for the sky's rays
+/// ([`Backend::sky_bits`]), else [`basis`] on the CPU (the reference): the same sums of
+/// the same cosines, so the same bits where the device's rays agree.
+pub fn basis_on(backend: &mut dyn Backend, rows: &Rows, bvh: &Bvh, sky: &[bool], dirs: &[Vec3]) -> Result<SkyBasis> {
+    match backend.sky_bits(rows, dirs, sky) {
+        None => Ok(basis(rows, bvh, sky, dirs)),
+        Some(bits) => {
+            let bits = bits?;
+            if bits.len() != dirs.len() || bits.iter().any(|b| b.len() < rows.len().div_ceil(32)) {
+                return Err(crate::error::Error::Gpu(format!("the device gave the sky's bits of {} directions for {}", bits.len(), dirs.len())));
+            }
+            Ok(basis_from_bits(rows, dirs, &bits))
+        }
+    }
+}
+
+/// The basis from each sun's visibility bits (`bits[k]`, bit `i` for row `i`): each
+/// row's cosines summed sun by sun, as [`basis`] sums them.
+pub fn basis_from_bits(rows: &Rows, dirs: &[Vec3], bits: &[Vec<u32>]) -> SkyBasis {
+    use rayon::prelude::*;
+    let n = dirs.len().max(1) as f32;
+    let d = (0..rows.len())
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| {
+            let mut s = 0.0f32;
+            for (k, &w) in dirs.iter().enumerate() {
+                if bits[k][i / 32] >> (i % 32) & 1 == 1 {
+                    let c = rows.facing(i, w).dot(w);
+                    if c > 0.0 {
+                        s += c;
+                    }
+                }
+            }
+            s / n
+        })
+        .collect();
+    SkyBasis { d, directions: dirs.to_vec(), mean_cos_up: mean_cos_up(dirs) }
+}
+
+/// Mean upward cosine of `dirs` (the open-sky value of `D`).
+fn mean_cos_up(dirs: &[Vec3]) -> f32 {
+    dirs.iter().map(|w| w.y.max(0.0)).sum::<f32>() / dirs.len().max(1) as f32
 }
 
 impl SkyBasis {
