@@ -42,30 +42,29 @@ const EDGE_SLACK: f32 = 1e-5;
 
 // The node's box as the shadow walk's hit test sees its triangles: grown by twice the
 // slack of its largest side, so a ray through an edge on the box's face is not culled
-// (the CPU's `slab_shadow`).
-fn slab_shadow(node: Node, o: vec3<f32>, inv: vec3<f32>, t_max: f32) -> bool {
+// (the CPU's `wide::shadow_box`).
+fn shadow_box(node: Node) -> Node {
     let ext = node.max - node.min;
     let pad = vec3<f32>(2.0 * EDGE_SLACK * max(max(max(ext.x, ext.y), ext.z), 0.0));
     var grown = node;
     grown.min = node.min - pad;
     grown.max = node.max + pad;
-    return slab(grown, o, inv, t_max);
+    return grown;
 }
 
-// `slab_shadow` as the CPU's four-wide walk decides it for any ray (`Node4::crossed` on
-// the node's shadow box: per axis x, y, z, `near = near.max(t0.min(t1))` and `far =
-// far.min(t0.max(t1))` from 0 and `t_max`, Rust's minimum and maximum, which drop a NaN):
-// where a component of `d` is zero its products are infinite or NaN, which WGSL leaves to
-// the implementation, so they are spelled out (`Ext`, below). `finite`: no component of
-// `d` is zero; then the plain test.
+// The shadow walk's box test as the CPU's four-wide walk decides it for any ray
+// (`Node4::crossed` on the node's `shadow_box`: per axis x, y, z, `near =
+// near.max(t0.min(t1))` and `far = far.min(t0.max(t1))` from 0 and `t_max`, Rust's minimum
+// and maximum, which drop a NaN): where a component of `d` is zero its products are
+// infinite or NaN, which WGSL leaves to the implementation, so they are spelled out
+// (`Ext`, below). `finite`: no component of `d` is zero; then the plain `slab`.
 fn slab_shadow_any(node: Node, o: vec3<f32>, d: vec3<f32>, inv: vec3<f32>, neg: vec3<bool>, finite: bool, t_max: f32) -> bool {
+    let b = shadow_box(node);
     if (finite) {
-        return slab_shadow(node, o, inv, t_max);
+        return slab(b, o, inv, t_max);
     }
-    let ext = node.max - node.min;
-    let pad = vec3<f32>(2.0 * EDGE_SLACK * max(max(max(ext.x, ext.y), ext.z), 0.0));
-    let lo = node.min - pad;
-    let hi = node.max + pad;
+    let lo = b.min;
+    let hi = b.max;
     var near = Ext(0.0, 0.0);
     var far = Ext(0.0, t_max);
     for (var a = 0u; a < 3u; a = a + 1u) {

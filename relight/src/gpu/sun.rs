@@ -127,8 +127,8 @@ impl GpuBackend {
             };
             let uniform = |p: SkyParams| d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some("sky params"), contents: bytemuck::bytes_of(&p), usage: wgpu::BufferUsages::UNIFORM });
             let (u0, u1) = (uniform(params(0)), uniform(params(1)));
-            // Pass 0 reads no crossings: the bits of its own output stand in for them,
-            // bound read-only in pass 1 only (a buffer bound once per pass).
+            // Pass 0 reads no crossings (it writes them): a small buffer fills that
+            // binding, since `crossed` cannot be bound twice in one bind group.
             let scratch = output(d, "sky no crossings", 16);
             let crossing = bind_group(d, &layout, "sky crossing", &[&u0, &rows_b, &self.mesh_nodes, &self.mesh_tris, &self.bounds, &sky_b, &dirs_b, &scratch, &crossed]);
             let blocking = bind_group(d, &layout, "sky blocking", &[&u1, &rows_b, &self.nodes, &self.tris, &self.bounds, &sky_b, &dirs_b, &crossed, &bits]);

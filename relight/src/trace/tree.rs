@@ -427,7 +427,7 @@ impl Stack {
 /// twice [`EDGE_SLACK`] of its largest side (a triangle's slack reaches at most that far
 /// beyond it). The exact box would cull a ray through a triangle's edge where that edge
 /// is the box's face, as the edges of Quake's axis-aligned brushes are (the floor under
-/// `skylight_bright`'s opening). The same in WGSL (`slab_shadow`); the first-hit walks
+/// `skylight_bright`'s opening). The same in WGSL (`shadow_box`, `slab_shadow_any`); the first-hit walks
 /// keep the exact box (their hit test has no slack, and their ties stay as they were).
 fn slab_shadow(node: &Node, o: Vec3, inv: Vec3, t_max: f32) -> bool {
     let (lo, hi) = crate::trace::wide::shadow_box(node);
