@@ -148,11 +148,14 @@ pub struct Cpu<'a> {
     /// What stopped the rows' rays in recent traces: tried first when a light is traced
     /// near one of them (the same bits).
     recent: visibility::RecentOccluders,
+    /// The rows' word boxes: the kernels leave out the words beyond a light's falloff
+    /// cut (the same sums; `rows` is borrowed, so they stay the rows' boxes).
+    boxes: visibility::WordBoxes,
 }
 
 impl<'a> Cpu<'a> {
     pub fn new(rows: &'a Rows, bvh: &'a Bvh) -> Cpu<'a> {
-        Cpu { rows, bvh, recent: Default::default() }
+        Cpu { rows, bvh, recent: Default::default(), boxes: visibility::WordBoxes::of(rows) }
     }
 }
 
@@ -171,9 +174,9 @@ impl Backend for Cpu<'_> {
             .collect())
     }
     fn irradiance(&mut self, vis: &Visibility, lights: &[Light]) -> Result<Vec<[f32; 3]>> {
-        Ok(lights::irradiance(self.rows, vis, lights))
+        Ok(lights::irradiance(self.rows, &self.boxes, vis, lights))
     }
     fn gradient(&mut self, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Result<Vec<LightGrad>> {
-        Ok(lights::gradient(self.rows, vis, lights, rho))
+        Ok(lights::gradient(self.rows, &self.boxes, vis, lights, rho))
     }
 }

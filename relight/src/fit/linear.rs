@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use super::Fitter;
 use crate::model::{lights, Model};
+use crate::trace::visibility::{UnitList, Visibility, WordBoxes};
 
 std::thread_local! {
     /// Per worker thread: the per-row lists of nonzero columns of the linear fit's last
@@ -78,16 +79,17 @@ enum Col {
 }
 
 /// Light `j`'s per-unit direct irradiance ([`lights::g`], W/m^2 per W/sr) at each row of
-/// `range` it reaches, in row order: from its cached unit list where there is one.
+/// `range` it reaches, in row order: from its cached unit list where there is one. Rows
+/// of the words beyond its falloff cut (`boxes` of `rows`, [`lights::cut_dist2`]) are
+/// left out: their values are all zero.
 #[inline]
-fn unit_g(rows: &crate::rows::Rows, vis: &crate::trace::visibility::Visibility, units: &[Option<std::sync::Arc<crate::trace::visibility::UnitList>>], all: &[crate::model::Light], j: usize, range: std::ops::Range<usize>, mut f: impl FnMut(usize, f32)) {
+fn unit_g(rows: &crate::rows::Rows, boxes: &WordBoxes, vis: &Visibility, units: &[Option<std::sync::Arc<UnitList>>], all: &[crate::model::Light], j: usize, range: std::ops::Range<usize>, mut f: impl FnMut(usize, f32)) {
     let l = &all[j];
+    let top = l.max_rgb();
+    let dist2 = lights::cut_dist2(top, &rows.sampling);
     match units.get(j).and_then(Option::as_ref) {
-        Some(list) => {
-            let top = l.max_rgb();
-            vis.for_each_visible_with(j, range, list, |i, g| f(i, lights::cut_by(g, top, &rows.sampling)))
-        }
-        None => vis.for_each_visible(j, range, |i| f(i, lights::g(rows, i, l))),
+        Some(list) => vis.for_each_visible_with_within(j, range, list, boxes, l.pos, dist2, |i, g| f(i, lights::cut_by(g, top, &rows.sampling))),
+        None => vis.for_each_visible_within(j, range, boxes, l.pos, dist2, |i| f(i, lights::g(rows, i, l))),
     }
 }
 
@@ -768,7 +770,7 @@ impl Fitter<'_> {
                     // `unit_g` is generic, not a `&mut dyn` call per entry: with that and
                     // the brightest channel taken once per light, this loop's thread time
                     // on oa_dm1 halved.
-                    Col::Light(j) => unit_g(rows, &self.vis, &units, &m.lights, j, block.clone(), |i, g| put(i, g as f64)),
+                    Col::Light(j) => unit_g(rows, &self.boxes, &self.vis, &units, &m.lights, j, block.clone(), |i, g| put(i, g as f64)),
                     Col::Sun => {
                         if let Some(s) = m.sun {
                             block.clone().for_each(|i| put(i, s.cos_at(rows, &self.vis, i) as f64));
@@ -824,7 +826,7 @@ impl Fitter<'_> {
                 .map(|col| match *col {
                     Col::Light(j) => {
                         let mut d = Vec::new();
-                        unit_g(rows, &self.vis, &units, &m.lights, j, 0..n, |i, g| {
+                        unit_g(rows, &self.boxes, &self.vis, &units, &m.lights, j, 0..n, |i, g| {
                             if g != 0.0 {
                                 d.push((i as u32, g));
                             }

@@ -137,6 +137,9 @@ pub struct Fitter<'a> {
     /// The linear fit's recent light columns through the non-local chain, by their
     /// whole input ([`linear::ColumnCache`]).
     columns: linear::ColumnCache,
+    /// The rows' word boxes: the linear fit's light columns leave out the words beyond a
+    /// light's falloff cut (the same columns).
+    boxes: visibility::WordBoxes,
 }
 
 /// What an evaluation of a model on a visibility ([`visibility::Snapshot`]) found: its
@@ -183,6 +186,7 @@ impl<'a> Fitter<'a> {
             chain_rounds: linear::CHAIN_ROUNDS,
             kind_scales: false,
             columns: linear::ColumnCache::default(),
+            boxes: visibility::WordBoxes::of(rows),
         }
     }
 

@@ -39,7 +39,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::rows::{Rows, Sampling};
-use crate::trace::visibility::{UnitKey, UnitList, Visibility, UNIT_STRETCH_WORDS};
+use crate::trace::visibility::{UnitKey, UnitList, Visibility, WordBoxes, UNIT_STRETCH_WORDS};
 
 /// A spot light's cone (q3map2's spot: a light entity with a `target`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -211,6 +211,20 @@ pub fn cut_by(g: f32, max_rgb: f32, s: &Sampling) -> f32 {
     g
 }
 
+/// The squared distance, m^2, beyond which the falloff cut takes every term of a light
+/// whose brightest channel is `max_rgb` W/sr: `g <= 1 / r^2` everywhere (the cosine and a
+/// spot's cone at most 1, the clamp inside `eps` lower still), so `max_rgb g <= falloff`
+/// from `r^2 >= max_rgb / falloff` on. With 1% to spare for the rounding of `g` in f32;
+/// infinite without a cut, or for an intensity that is not a finite non-negative number.
+#[inline]
+pub fn cut_dist2(max_rgb: f32, s: &Sampling) -> f32 {
+    if s.falloff > 0.0 && max_rgb >= 0.0 && max_rgb.is_finite() {
+        max_rgb / s.falloff * 1.01
+    } else {
+        f32::INFINITY
+    }
+}
+
 /// [`g_at`] before the falloff cut.
 #[inline(always)]
 fn g_uncut_at(x: Vec3, n: Vec3, l: &Light, s: &Sampling) -> f32 {
@@ -297,29 +311,40 @@ pub fn unit_lists(rows: &Rows, vis: &Visibility, lights: &[Light], build: bool) 
 
 /// Irradiance of every light at every row, W/m^2 per channel (CPU backend). Each block
 /// of rows runs light by light over the rows the light reaches
-/// ([`Visibility::for_each_visible`]), so a light that reaches few rows costs little;
-/// each row still sums its lights in their order, in f64.
-pub fn irradiance(rows: &Rows, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
+/// ([`Visibility::for_each_visible`]) within its falloff cut's distance ([`cut_dist2`],
+/// `boxes` of `rows`), so a light that reaches few rows costs little; each row still
+/// sums its lights in their order, in f64.
+pub fn irradiance(rows: &Rows, boxes: &WordBoxes, vis: &Visibility, lights: &[Light]) -> Vec<[f32; 3]> {
     let units = unit_lists(rows, vis, lights, false);
     let mut out = vec![[0.0f32; 3]; rows.len()];
     let block_rows = crate::rows::block_rows(rows.len());
     out.par_chunks_mut(block_rows).enumerate().for_each(|(bi, block)| {
         let base = bi * block_rows;
+        let range = base..base + block.len();
         let mut e = vec![[0.0f64; 3]; block.len()];
         for (j, l) in lights.iter().enumerate() {
-            let mut add = |i: usize, g: f32| {
-                if g != 0.0 {
-                    for c in 0..3 {
-                        e[i - base][c] += l.rgb[c] as f64 * g as f64;
+            let top = l.max_rgb();
+            let dist2 = cut_dist2(top, &rows.sampling);
+            if !l.rgb.iter().all(|v| v.is_finite()) {
+                // Not a number to add without its zeros' test (`inf * 0`).
+                vis.for_each_visible(j, range.clone(), |i| {
+                    let g = g(rows, i, l);
+                    if g != 0.0 {
+                        (0..3).for_each(|c| e[i - base][c] += l.rgb[c] as f64 * g as f64);
                     }
-                }
+                });
+                continue;
+            }
+            // A cut term adds `rgb * 0 = 0`, which leaves the sum as it was (it is never
+            // -0): no branch on it.
+            let rgb = l.rgb.map(f64::from);
+            let mut add = |i: usize, g: f32| {
+                let v = &mut e[i - base];
+                (0..3).for_each(|c| v[c] += rgb[c] * g as f64);
             };
             match &units[j] {
-                Some(list) => {
-                    let top = l.max_rgb();
-                    vis.for_each_visible_with(j, base..base + block.len(), list, |i, g| add(i, cut_by(g, top, &rows.sampling)))
-                }
-                None => vis.for_each_visible(j, base..base + block.len(), |i| add(i, g(rows, i, l))),
+                Some(list) => vis.for_each_visible_with_within(j, range.clone(), list, boxes, l.pos, dist2, |i, g| add(i, cut_by(g, top, &rows.sampling))),
+                None => vis.for_each_visible_within(j, range.clone(), boxes, l.pos, dist2, |i| add(i, g(rows, i, l))),
             }
         }
         for (o, v) in block.iter_mut().zip(e) {
@@ -354,8 +379,9 @@ impl LightGrad {
 }
 
 /// The lights' gradients for `rho_ic = dF/dE_ic` (CPU backend; rayon over row chunks,
-/// f64 sums).
-pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Vec<LightGrad> {
+/// f64 sums; each light over the rows within its falloff cut's distance, as
+/// [`irradiance`]).
+pub fn gradient(rows: &Rows, boxes: &WordBoxes, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]]) -> Vec<LightGrad> {
     let k = lights.len();
     let chunk = crate::rows::block_rows(rows.len());
     (0..rows.len().div_ceil(chunk))
@@ -366,7 +392,7 @@ pub fn gradient(rows: &Rows, vis: &Visibility, lights: &[Light], rho: &[[f32; 3]
             // Light by light over the rows it reaches, each light's rows in order.
             for (j, l) in lights.iter().enumerate() {
                 let gj = &mut g[j];
-                vis.for_each_visible(j, block.clone(), |i| {
+                vis.for_each_visible_within(j, block.clone(), boxes, l.pos, cut_dist2(l.max_rgb(), &rows.sampling), |i| {
                     let r = rho[i];
                     if r == [0.0; 3] {
                         return;
@@ -456,7 +482,8 @@ mod tests {
         let mut lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [0.05 + 0.3 * j as f32, 0.2, 0.1])).collect();
         lights[3].spot = Some(Spot { axis: Vec3::new(0.3, -1.0, 0.2).normalize(), radius_by_dist: 0.8 });
         let mut vis = patterned_visibility(n, lights.len());
-        let check = |vis: &Visibility, lights: &[Light], what: &str| assert!(irradiance(&rows, vis, lights) == row_by_row(&rows, vis, lights), "{what}");
+        let boxes = WordBoxes::of(&rows);
+        let check = |vis: &Visibility, lights: &[Light], what: &str| assert!(irradiance(&rows, &boxes, vis, lights) == row_by_row(&rows, vis, lights), "{what}");
         // The evaluation sees the geometry, the linear fit's call fills the cache, the next
         // evaluation reads it.
         check(&vis, &lights, "before");
@@ -510,6 +537,49 @@ mod tests {
         }
     }
 
+    /// The words a light's falloff cut leaves out ([`cut_dist2`], [`WordBoxes`]) hold only
+    /// rows where its `g` is cut to zero, and the loops within that distance visit the
+    /// other rows with their own entries; the gradient, like the irradiance, is the
+    /// row-by-row sum. Lights dim, bright, dark and at a wall's row.
+    #[test]
+    fn words_beyond_the_falloff_cut_add_nothing() {
+        let (_, mut rows) = crate::testutil::room(40);
+        rows.sampling.falloff = 0.02;
+        let n = rows.len();
+        let boxes = WordBoxes::of(&rows);
+        let mut lights: Vec<Light> = (0..5).map(|j| Light::point(Vec3::new(0.5 + 0.6 * j as f32, 1.2, 0.4 + 0.5 * j as f32), [0.03 + 0.5 * j as f32, 0.02, 0.01])).collect();
+        lights[2].spot = Some(Spot { axis: Vec3::new(0.2, -1.0, 0.1).normalize(), radius_by_dist: 0.9 });
+        lights[3].rgb = [0.0; 3];
+        lights[4].pos = rows.pos[n / 2];
+        let vis = patterned_visibility(n, lights.len());
+        let _ = unit_lists(&rows, &vis, &lights, false);
+        let lists = unit_lists(&rows, &vis, &lights, true);
+        let mut left_out = 0;
+        for (j, l) in lights.iter().enumerate() {
+            let dist2 = cut_dist2(l.max_rgb(), &rows.sampling);
+            for (a, b) in [(0, n), (5, 37), (1000, 2100), (n - 10, n)] {
+                let mut near = Vec::new();
+                vis.for_each_visible_within(j, a..b, &boxes, l.pos, dist2, |i| near.push(i));
+                let all: Vec<usize> = (a..b).filter(|&i| vis.visible(j, i)).collect();
+                for i in all.iter().filter(|i| !near.contains(i)) {
+                    assert_eq!(g(&rows, *i, l), 0.0, "light {j}: row {i} left out but lit");
+                    left_out += 1;
+                }
+                let mut with = Vec::new();
+                vis.for_each_visible_with_within(j, a..b, lists[j].as_ref().expect("cached"), &boxes, l.pos, dist2, |i, g| with.push((i, g)));
+                let want: Vec<(usize, f32)> = near.iter().map(|&i| (i, g_uncut(&rows, i, l))).collect();
+                assert_eq!(with, want, "light {j}, rows {a}..{b}");
+            }
+        }
+        assert!(left_out > n, "the cut leaves whole words out ({left_out} rows)");
+        assert!(irradiance(&rows, &boxes, &vis, &lights) == row_by_row(&rows, &vis, &lights));
+        let rho: Vec<[f32; 3]> = (0..n).map(|i| [0.3, -0.2, (i % 7) as f32 * 0.1]).collect();
+        assert_eq!(gradient(&rows, &boxes, &vis, &lights, &rho), gradient(&rows, &WordBoxes::default(), &vis, &lights, &rho), "the same sums with no word left out");
+        // No cut, no distance: every word is kept.
+        assert_eq!(cut_dist2(1.0, &Sampling { falloff: 0.0, ..rows.sampling }), f32::INFINITY);
+        assert_eq!(cut_dist2(f32::NAN, &rows.sampling), f32::INFINITY);
+    }
+
     /// The light-by-light loops give, bit for bit, what a row-by-row loop over every
     /// light gives (each row sums its lights in the same order).
     #[test]
@@ -520,11 +590,12 @@ mod tests {
         let lights: Vec<Light> = (0..7).map(|j| Light::point(Vec3::new(0.5 + 0.4 * j as f32, 1.2, 0.3 + 0.35 * j as f32), [1.0 + j as f32, 2.0, 0.5])).collect();
         let vis = patterned_visibility(n, lights.len());
         let reference = row_by_row(&rows, &vis, &lights);
-        assert_eq!(irradiance(&rows, &vis, &lights), reference);
+        let boxes = WordBoxes::of(&rows);
+        assert_eq!(irradiance(&rows, &boxes, &vis, &lights), reference);
         assert!(reference.iter().filter(|e| e[0] > 0.0).count() > n / 2);
         // The gradient against a row-by-row sum, per light and block as the loop sums.
         let rho: Vec<[f32; 3]> = (0..n).map(|i| if i % 11 == 0 { [0.0; 3] } else { [0.3, -0.2, (i % 7) as f32 * 0.1] }).collect();
-        let got = gradient(&rows, &vis, &lights, &rho);
+        let got = gradient(&rows, &boxes, &vis, &lights, &rho);
         for (j, l) in lights.iter().enumerate() {
             // Sums and sums of magnitudes (the rounding scale of a reordered sum).
             let (mut want, mut size) = (LightGrad::default(), LightGrad::default());
@@ -564,7 +635,8 @@ mod tests {
         let rho: Vec<[f32; 3]> = (0..n).map(|i| [0.3 + (i % 13) as f32 * 0.01, -0.2, (i % 7) as f32 * 0.1]).collect();
         let on = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
-            pool.install(|| (irradiance(&rows, &vis, &lights), gradient(&rows, &vis, &lights, &rho)))
+            let boxes = WordBoxes::of(&rows);
+            pool.install(|| (irradiance(&rows, &boxes, &vis, &lights), gradient(&rows, &boxes, &vis, &lights, &rho)))
         };
         let one = on(1);
         for threads in [2, 3, 8] {

@@ -72,6 +72,14 @@ impl Visibility {
         each_set_bit(&self.bits[light], rows, f);
     }
 
+    /// [`Visibility::for_each_visible`] without the words whose rows all lie farther than
+    /// `sqrt(dist2)` meters from `at` ([`WordBoxes`] of the rows): for the rows a light
+    /// reaches within the distance its falloff cut leaves it.
+    #[inline]
+    pub fn for_each_visible_within(&self, light: usize, rows: std::ops::Range<usize>, boxes: &WordBoxes, at: Vec3, dist2: f32, f: impl FnMut(usize)) {
+        each_set_bit_where(&self.bits[light], rows, |w, _| !boxes.beyond(w, at, dist2), f);
+    }
+
     /// Whether the sun (as last traced) reaches `vertex`.
     #[inline]
     pub fn sun_visible(&self, vertex: usize) -> bool {
@@ -152,7 +160,21 @@ impl Visibility {
     /// [`Visibility::for_each_visible`] with each row's entry of `list`, light `light`'s
     /// [`UnitList`] for its current bits: `f(row, value)`.
     #[inline]
-    pub fn for_each_visible_with(&self, light: usize, rows: std::ops::Range<usize>, list: &UnitList, mut f: impl FnMut(usize, f32)) {
+    pub fn for_each_visible_with(&self, light: usize, rows: std::ops::Range<usize>, list: &UnitList, f: impl FnMut(usize, f32)) {
+        self.for_each_visible_with_where(light, rows, list, |_, _| true, f)
+    }
+
+    /// [`Visibility::for_each_visible_with`] within a distance, as
+    /// [`Visibility::for_each_visible_within`].
+    #[inline]
+    pub fn for_each_visible_with_within(&self, light: usize, rows: std::ops::Range<usize>, list: &UnitList, boxes: &WordBoxes, at: Vec3, dist2: f32, f: impl FnMut(usize, f32)) {
+        self.for_each_visible_with_where(light, rows, list, |w, _| !boxes.beyond(w, at, dist2), f)
+    }
+
+    /// [`Visibility::for_each_visible_with`] over the words `keep(word index, bits)`
+    /// keeps; the list's index steps over the others' entries.
+    #[inline]
+    fn for_each_visible_with_where(&self, light: usize, rows: std::ops::Range<usize>, list: &UnitList, mut keep: impl FnMut(usize, u32) -> bool, mut f: impl FnMut(usize, f32)) {
         let bits = &self.bits[light];
         if rows.is_empty() {
             return;
@@ -164,10 +186,22 @@ impl Visibility {
         let mut k = list.stretch_start.get(w0 / UNIT_STRETCH_WORDS).copied().unwrap_or(0) as usize;
         k += bits[first.min(bits.len())..w0.min(bits.len())].iter().map(|w| w.count_ones() as usize).sum::<usize>();
         k += bits.get(w0).map_or(0, |w| (w & !(u32::MAX << (rows.start & 31))).count_ones() as usize);
-        each_set_bit(bits, rows, |i| {
-            f(i, list.values[k]);
-            k += 1;
-        });
+        let k = std::cell::Cell::new(k);
+        each_set_bit_where(
+            bits,
+            rows,
+            |w, word| {
+                let kept = keep(w, word);
+                if !kept {
+                    k.set(k.get() + word.count_ones() as usize);
+                }
+                kept
+            },
+            |i| {
+                f(i, list.values[k.get()]);
+                k.set(k.get() + 1);
+            },
+        );
     }
 
     /// The cache of the lights `js` only, in that order (the sun's bits with them).
@@ -249,7 +283,14 @@ pub type Bits = std::sync::Arc<Vec<u32>>;
 /// Calls `f(row)` for every set bit of `bits` in `rows`, in ascending order, 32 rows per
 /// word (a word with no bit set costs one test).
 #[inline]
-pub fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, mut f: impl FnMut(usize)) {
+pub fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, f: impl FnMut(usize)) {
+    each_set_bit_where(bits, rows, |_, _| true, f)
+}
+
+/// [`each_set_bit`] over the words with a bit set in `rows` that `keep(word index, the
+/// word's bits in rows)` keeps.
+#[inline]
+pub fn each_set_bit_where(bits: &[u32], rows: std::ops::Range<usize>, mut keep: impl FnMut(usize, u32) -> bool, mut f: impl FnMut(usize)) {
     if rows.is_empty() {
         return;
     }
@@ -262,10 +303,36 @@ pub fn each_set_bit(bits: &[u32], rows: std::ops::Range<usize>, mut f: impl FnMu
         if w + 1 == w1 && rows.end & 31 != 0 {
             word &= (1u32 << (rows.end & 31)) - 1;
         }
+        if word == 0 || !keep(w, word) {
+            continue;
+        }
         while word != 0 {
             let i = (w << 5) | word.trailing_zeros() as usize;
             word &= word - 1;
             f(i);
+        }
+    }
+}
+
+/// The bounding box of each visibility word's 32 rows (the last word's as far as there
+/// are rows), min and max corner: a word whose box lies beyond a distance from a point
+/// has all its rows beyond it. Built from rows that its holder borrows for as long as it
+/// keeps the boxes (the CPU backend, a fit), so that the rows cannot move under them.
+#[derive(Debug, Clone, Default)]
+pub struct WordBoxes(Vec<[Vec3; 2]>);
+
+impl WordBoxes {
+    pub fn of(rows: &Rows) -> WordBoxes {
+        WordBoxes(rows.pos.par_chunks(32).map(|c| c.iter().fold([Vec3::INFINITY, Vec3::NEG_INFINITY], |[lo, hi], &p| [lo.min(p), hi.max(p)])).collect())
+    }
+
+    /// Whether every row of word `w` lies farther than `sqrt(dist2)` from `at` (false for
+    /// a word it has no box for, and wherever the test meets a NaN).
+    #[inline]
+    pub fn beyond(&self, w: usize, at: Vec3, dist2: f32) -> bool {
+        match self.0.get(w) {
+            Some(&[lo, hi]) => (at.max(lo).min(hi) - at).length_squared() > dist2,
+            None => false,
         }
     }
 }
