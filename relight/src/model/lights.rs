@@ -212,14 +212,15 @@ pub fn cut_by(g: f32, max_rgb: f32, s: &Sampling) -> f32 {
 }
 
 /// The squared distance, m^2, beyond which the falloff cut takes every term of a light
-/// whose brightest channel is `max_rgb` W/sr: `g <= 1 / r^2` everywhere (the cosine and a
-/// spot's cone at most 1, the clamp inside `eps` lower still), so `max_rgb g <= falloff`
-/// from `r^2 >= max_rgb / falloff` on. With 1% to spare for the rounding of `g` in f32;
-/// infinite without a cut, or for an intensity that is not a finite non-negative number.
+/// whose brightest channel is `max_rgb` W/sr: the light's reach
+/// ([`crate::trace::visibility::reach`]), as `g <= 1 / r^2` everywhere (the cosine and a
+/// spot's cone at most 1, the clamp inside `eps` lower still), with 0.5% to spare for the
+/// rounding of `g` in f32; infinite without a cut, or for an intensity that is not a
+/// finite non-negative number (where the cut would not take a NaN's terms).
 #[inline]
 pub fn cut_dist2(max_rgb: f32, s: &Sampling) -> f32 {
-    if s.falloff > 0.0 && max_rgb >= 0.0 && max_rgb.is_finite() {
-        max_rgb / s.falloff * 1.01
+    if max_rgb >= 0.0 && max_rgb.is_finite() {
+        crate::trace::visibility::reach(max_rgb, s, 1.005).powi(2)
     } else {
         f32::INFINITY
     }
