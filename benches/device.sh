@@ -11,9 +11,20 @@
 # the table (device.md), the log and the reports (reports.tgz) go. RUN: labels of the runs
 # below to do (all by default). Each run has a time limit of its own, so a slow one
 # leaves the others their time; the runs come in the order of what the issues ask first.
+#
+# Where MAPS also holds `relight-tests` (the relight crate's unit-test binary, stripped:
+# `cargo test --release -p q3gltf-relight --lib --no-run` names it), its GPU tests run
+# first: every kernel against its CPU reference on the real device, their summary at the
+# head of device.md (so far they have run on lavapipe only).
 set -uo pipefail
 bin=$1; maps=$2; out=$3; shift 3
 mkdir -p "$out/reports"
+if [ -x "$maps/relight-tests" ]; then
+  timeout 180 "$maps/relight-tests" gpu:: > "$out/gpu-tests.log" 2>&1
+  echo "GPU kernels against their CPU references on this device (\`$maps/relight-tests gpu::\`): rc $?, $(grep -E '^test result' "$out/gpu-tests.log" | tail -1)" > "$out/gpu-tests.md"
+  grep -E '^test .* FAILED$' "$out/gpu-tests.log" | sed 's/^/    /' >> "$out/gpu-tests.md"
+  grep -E -A3 'panicked at' "$out/gpu-tests.log" | grep -v -E '^ +[0-9]+: |^stack backtrace|^note: |^--$' | head -40 | sed 's/^/    /' >> "$out/gpu-tests.md"
+fi
 # label | map | backend | arguments
 runs='oa_dm1.wgpu.open|oa_dm1.glb|wgpu|
 oa_dm1.wgpu|oa_dm1.glb|wgpu|
@@ -36,7 +47,7 @@ echo "$runs" | while IFS='|' read -r label map backend args; do
   rc=$?
   echo "$label: rc $rc, wall $(awk "BEGIN { print $(date +%s.%N) - $start }") s" >> "$log"
 done
-python3 "$(dirname "$0")/device_table.py" "$out/reports" > "$out/device.md" 2>> "$log"
+{ [ -f "$out/gpu-tests.md" ] && { cat "$out/gpu-tests.md"; echo; }; python3 "$(dirname "$0")/device_table.py" "$out/reports"; } > "$out/device.md" 2>> "$log"
 tar czf "$out/reports.tgz" -C "$out" reports
 rm -rf "$out/reports"
 cat "$out/device.md" "$log"
