@@ -26,6 +26,14 @@ Writes, under OUT:
     python3 benches/thesis.py --bin target/release/q3gltf --game-dir DIR --out docs/bench
     python3 benches/thesis.py --bin ... --quick        (the bundled sample, small budgets)
 
+The full sweep (eleven scenes, 18 configurations, three seeds, two backends) takes hours
+on a GPU; a lent one comes for minutes. `--resume` keeps the runs OUT's CSVs already
+hold (the same scene, configuration, backend and seed are not run again) and
+`--budget SECONDS` starts no run after that many seconds, so the sweep can go on over
+several leases; the files are rewritten after every run, so a sweep killed from outside
+keeps what it finished. Each run records the machine it ran on (`machine` in
+thesis_runs.csv), and thesis.md lists them.
+
 Scenes (`--scenes`): `sample` (the bundled sample), `fixture:NAME` (one of our q3map2-compiled
 ground-truth maps, `tests/fixtures/q3map2/maps/NAME.bsp`, converted with its shaders: `point`
 and `pillar` are lit by point lights alone, the one kind of light the thesis's estimator
@@ -43,6 +51,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -194,6 +203,8 @@ def main() -> None:
     ap.add_argument("--thesis-time-limit", type=float, help="seconds per run of the thesis's method only (a budget where the whole sweep must fit a lease)")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated seeds (default: three)")
     ap.add_argument("--quick", action="store_true", help="three small thesis configurations, 10,000 rays per light, 20 iterations a phase; on the bundled sample unless --scenes")
+    ap.add_argument("--resume", action="store_true", help="keep the runs OUT's CSVs already hold and do only the others (a sweep over several leases)")
+    ap.add_argument("--budget", type=float, help="start no run after this many seconds (what is done is written after every run)")
     a = ap.parse_args()
     seeds = [int(x) for x in a.seeds.split(",")]
     scenes = a.scenes.split(",") if a.scenes else ["sample"] if a.quick else SCENES
@@ -201,45 +212,100 @@ def main() -> None:
     cap = a.max_iterations or (20 if a.quick else None)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs, curves = [], []
-    adapters: set[str] = set()
+    runs, curves = (read_previous(out) if a.resume else ([], []))
+    done = {(r["scene"], r["config"], r["backend"], r["seed"]) for r in runs}
+    here = machine()
+    started = time.monotonic()
+    settings = {"rays": rays, "cap": cap, "seeds": seeds, "thesis_time_limit": a.thesis_time_limit, "time_limit": a.time_limit}
+    left = 0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for scene in scenes:
-            glb = convert(a.bin, scene, a.game_dir, work)
-            scene = label(scene)
+            glb = None
             for cfg in configs(a.quick, rays, cap):
                 for backend in a.backends.split(","):
                     for seed in seeds:
+                        if (label(scene), cfg["name"], backend, seed) in done:
+                            continue
+                        if a.budget is not None and time.monotonic() - started > a.budget:
+                            left += 1
+                            continue
+                        glb = glb or convert(a.bin, scene, a.game_dir, work)
                         limit = a.thesis_time_limit if cfg["method"] == "thesis" and a.thesis_time_limit else a.time_limit
                         r = run_one(a.bin, glb, cfg, backend, seed, limit, work)
                         if r is None:
                             continue
                         s = summary(r)
-                        adapters.add(r["backend"])
                         target = r["target_space"]
-                        runs.append({"scene": scene, "config": cfg["name"], "method": cfg["method"], "backend": backend, "seed": seed, "target": target, **s})
+                        runs.append({"scene": label(scene), "config": cfg["name"], "method": cfg["method"], "backend": backend, "seed": seed, "target": target, **s, "adapter": r["backend"], "machine": here})
                         for it in r["iterations"]:
                             if not it.get("placement"):
-                                curves.append({"scene": scene, "config": cfg["name"], "seed": seed, "backend": backend, "target": target, "time_s": it["time_s"], "iteration": it["iteration"], "objective": it["objective"], "rel_error": it["rel_error"], "lights": it["lights"]})
-                        print(f"{scene:10} {cfg['name']:24} {backend:4} seed {seed}: error {s['error']:.4f}, {s['wall']:.1f} s, {s['lights']} lights, {s['evaluations']} evaluations", flush=True)
-    with open(out / "thesis.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["scene", "config", "seed", "backend", "target", "time_s", "iteration", "objective", "rel_error", "lights"])
-        w.writeheader()
-        w.writerows(curves)
-    with open(out / "thesis_runs.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["scene", "config", "method", "backend", "seed", "target", "error", "wall", "t_within_1pct", "lights", "evaluations", "iterations"])
-        w.writeheader()
-        w.writerows(runs)
+                                curves.append({"scene": label(scene), "config": cfg["name"], "seed": seed, "backend": backend, "target": target, "time_s": it["time_s"], "iteration": it["iteration"], "objective": it["objective"], "rel_error": it["rel_error"], "lights": it["lights"]})
+                        print(f"{label(scene):10} {cfg['name']:24} {backend:4} seed {seed}: error {s['error']:.4f}, {s['wall']:.1f} s, {s['lights']} lights, {s['evaluations']} evaluations", flush=True)
+                        write(out, runs, curves, list(map(label, scenes)), settings)
+    write(out, runs, curves, list(map(label, scenes)), settings)
+    if left:
+        print(f"thesis.py: the budget ({a.budget:g} s) left {left} runs undone: run again with --resume", file=sys.stderr)
+    print((out / "thesis.md").read_text())
 
-    md = [f"# Our relight against the thesis's method\n", f"Machine: {machine()}; backends as the runs named them: {'; '.join(sorted(adapters))}. Rays per light of the thesis's estimator: {rays}; "
+
+RUN_FIELDS = ["scene", "config", "method", "backend", "seed", "target", "error", "wall", "t_within_1pct", "lights", "evaluations", "iterations", "adapter", "machine"]
+CURVE_FIELDS = ["scene", "config", "seed", "backend", "target", "time_s", "iteration", "objective", "rel_error", "lights"]
+
+
+def read_previous(out: Path) -> tuple[list[dict], list[dict]]:
+    """The runs and curves OUT's CSVs hold (numbers as numbers; a run from before the
+    machine was recorded has it empty)."""
+    runs, curves = [], []
+    num = lambda v: float(v) if v not in ("", None) else math.nan
+    if (out / "thesis_runs.csv").exists():
+        with open(out / "thesis_runs.csv", newline="") as f:
+            for r in csv.DictReader(f):
+                runs.append({**{k: r.get(k) or "" for k in RUN_FIELDS}, "seed": int(r["seed"]), "error": num(r["error"]), "wall": num(r["wall"]), "t_within_1pct": num(r["t_within_1pct"]),
+                             "lights": int(r["lights"]), "evaluations": int(r["evaluations"]), "iterations": int(r["iterations"])})
+    if (out / "thesis.csv").exists():
+        with open(out / "thesis.csv", newline="") as f:
+            for c in csv.DictReader(f):
+                curves.append({**c, "seed": int(c["seed"]), "time_s": num(c["time_s"]), "iteration": int(c["iteration"]), "objective": num(c["objective"]), "rel_error": num(c["rel_error"]), "lights": int(c["lights"])})
+    return runs, curves
+
+
+def write(out: Path, runs: list[dict], curves: list[dict], scenes: list[str], settings: dict) -> None:
+    """thesis.csv, thesis_runs.csv, thesis.md and thesis.svg from every run so far, each
+    written under a temporary name and renamed."""
+    def replace(name: str, fill) -> None:
+        tmp = out / f".{name}.tmp"
+        with open(tmp, "w", newline="") as f:
+            fill(f)
+        tmp.replace(out / name)
+
+    def table(fields, rows):
+        def fill(f):
+            w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+        return fill
+    replace("thesis.csv", table(CURVE_FIELDS, curves))
+    replace("thesis_runs.csv", table(RUN_FIELDS, runs))
+    md, svg = render(runs, curves, [s for s in scenes if any(r["scene"] == s for r in runs)] + sorted({r["scene"] for r in runs} - set(scenes)), settings)
+    replace("thesis.md", lambda f: f.write(md))
+    replace("thesis.svg", lambda f: f.write(svg))
+
+
+def render(runs: list[dict], curves: list[dict], scenes: list[str], settings: dict) -> tuple[str, str]:
+    """The table (Markdown) and the plots (SVG) of `runs` and their `curves`."""
+    rays, cap, seeds = settings["rays"], settings["cap"], settings["seeds"]
+    adapters = sorted({r["adapter"] for r in runs if r.get("adapter")})
+    machines = sorted({r["machine"] for r in runs if r.get("machine")})
+    unknown = sum(1 for r in runs if not r.get("machine"))
+    md = [f"# Our relight against the thesis's method\n", f"Machine{'s' if len(machines) > 1 else ''}: {'; '.join(machines) or 'not recorded'}{f' (and {unknown} runs from before machines were recorded)' if unknown and machines else ''}; backends as the runs named them: {'; '.join(adapters) or 'not recorded'}. Rays per light of the thesis's estimator: {rays}; "
           f"phase cap of its runs: {cap or 'none (the thesis: Adam 400, L-BFGS until it stops)'}; seeds {seeds}"
-          + (f"; each run of the thesis's method stopped after {a.thesis_time_limit:g} s" if a.thesis_time_limit else "")
-          + (f"; each run stopped after {a.time_limit:g} s" if a.time_limit else "") + ".",
+          + (f"; each run of the thesis's method stopped after {settings['thesis_time_limit']:g} s" if settings["thesis_time_limit"] else "")
+          + (f"; each run stopped after {settings['time_limit']:g} s" if settings["time_limit"] else "") + ".",
           "Errors are each run's relative error on its own target (luxel or vertex rows; `ours default, vertex` and the thesis's runs share the vertex rows). "
           "Median over seeds, spread min-max; the time to within 1% is when the run's curve first came within 1% of its own best error.\n"]
     svg, y = [], 0
-    for scene in map(label, scenes):
+    for scene in scenes:
         md += [f"## {scene}\n", "| configuration | backend | target | final error (median) | spread | time to within 1% (s) | wall (s) | lights | evaluations |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
         groups: dict[tuple[str, str], list[dict]] = {}
         for r in runs:
@@ -275,9 +341,7 @@ def main() -> None:
         scat = [(f"{n} ({b})", [(r["wall"], r["error"]) for r in groups[(n, b)]], colours[(n, b)], True) for (n, b) in sorted(groups)]
         svg.append(panel(540, y, f"{scene}: final error against wall time (Pareto front)", "wall seconds", scat + [("Pareto front", front, "#000", False)], False))
         y += 400
-    (out / "thesis.md").write_text("\n".join(md) + "\n")
-    (out / "thesis.svg").write_text(f'<svg xmlns="http://www.w3.org/2000/svg" width="1080" height="{max(y, 400)}" font-family="sans-serif">\n<rect width="100%" height="100%" fill="white"/>\n' + "\n".join(svg) + "\n</svg>\n")
-    print("\n".join(md))
+    return "\n".join(md) + "\n", f'<svg xmlns="http://www.w3.org/2000/svg" width="1080" height="{max(y, 400)}" font-family="sans-serif">\n<rect width="100%" height="100%" fill="white"/>\n' + "\n".join(svg) + "\n</svg>\n"
 
 
 if __name__ == "__main__":
