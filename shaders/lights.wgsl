@@ -32,6 +32,22 @@ fn zero_term() -> Term {
     return Term(0.0, vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
 }
 
+// The visibility bits of light `j` over the 64 rows of workgroup `wg` (its two words, 0
+// past the last row): 0 where the light reaches none of them, whether its shadows or the
+// reach it was traced to (beyond which its falloff cut takes every term) stop it.
+fn group_bits(j: u32, wg: u32) -> u32 {
+    let slot = u32(lights[3u * j + 2u].w);
+    let w = 2u * wg;
+    var bits = 0u;
+    if (w < lp.words) {
+        bits = vis[slot * lp.words + w];
+    }
+    if (w + 1u < lp.words) {
+        bits = bits | vis[slot * lp.words + w + 1u];
+    }
+    return bits;
+}
+
 fn visible(j: u32, i: u32) -> bool {
     let slot = u32(lights[3u * j + 2u].w);
     return ((vis[slot * lp.words + (i >> 5u)] >> (i & 31u)) & 1u) == 1u;

@@ -4,7 +4,8 @@
 //! visibility of lights re-traced since the last call and run
 //! `shaders/light_irradiance.wgsl` and `shaders/light_gradient.wgsl` (whose per-workgroup
 //! partial sums are reduced by blocks on the device and the blocks added on the CPU in
-//! f64). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]), the
+//! f64; both take the lights in tiles of 64 and pass over those that reach no row of a
+//! workgroup, by its two visibility words, with the sums of visiting them all). The surface lights' basis is `shaders/surface_lights.wgsl` ([`surface`]), the
 //! sun's visibility `shaders/sun.wgsl` and the sky light's `shaders/sky.wgsl` ([`sun`]),
 //! the first hits of the dirt's and the
 //! bounce's rays `shaders/first_hits.wgsl` ([`first_hits`]); every shadow ray walks
