@@ -391,20 +391,58 @@ pub const NNLS_WORK: f64 = 2e9;
 pub fn nnls_cd(g: &[f64], r: &[f64], n: usize, x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
     let rows = SparseRows::of_dense(g, n);
     let diag: Vec<f64> = (0..n).map(|j| g[j * n + j]).collect();
-    nnls_cd_rows(&rows, &diag, r, x, free, upper, sweeps);
+    nnls_cd_rows_with(&rows, &diag, r, x, free, upper, sweeps, 0);
 }
 
 /// [`nnls_cd`] on the matrix's nonzero entries (both triangles, each row's in ascending
-/// column) and its diagonal: the same iterates, to the bit.
+/// column) and its diagonal, with a [`subspace step`](Subspace::step) every
+/// [`SUBSPACE_EVERY`] sweeps.
+///
+/// Coordinate descent alone crawls where columns are nearly parallel (a thousand source
+/// lights, each overlapping tens of neighbours): on oacmpdm3 from its 1388 source lights a
+/// solve took 900-1900 sweeps. It finds which coordinates sit at their bounds quickly;
+/// what is slow is the interior, where the subspace step is a Newton step. The sweeps
+/// still decide the active set and the stop, so the solve ends where the sweeps alone
+/// would, at the same minimum (the objective the same to about 1e-15 relative on those
+/// solves, the coefficients to about 1e-8), in about a tenth of the sweeps.
 fn nnls_cd_rows(rows: &SparseRows, diag: &[f64], r: &[f64], x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize) {
+    nnls_cd_rows_with(rows, diag, r, x, free, upper, sweeps, SUBSPACE_EVERY);
+}
+
+/// Sweeps between subspace steps of [`nnls_cd_rows`]. On oacmpdm3's 1388 source lights
+/// (the first 300 solves of a run, 2-core machine; thread seconds against the sweeps
+/// alone): every 5 sweeps 8.6 s, 10: 7.3 s, 20: 6.6 s, 40: 6.3 s, against 15.5 s.
+const SUBSPACE_EVERY: usize = 20;
+
+/// Most conjugate-gradient iterations of a subspace step (30, 60, 120 at 20 sweeps
+/// apart: about the same time; fewer leave more to the sweeps).
+const CG_ITERATIONS: usize = 60;
+
+/// A subspace step's conjugate gradients stop once the residual is this fraction of its
+/// start.
+const CG_TOL: f64 = 1e-6;
+
+/// [`nnls_cd_rows`] with a subspace step every `subspace_every` sweeps (0: none, the
+/// plain sweeps of [`nnls_cd`]: the dense sweep's iterates, to the bit). Returns the
+/// sweeps made.
+#[allow(clippy::too_many_arguments)]
+fn nnls_cd_rows_with(rows: &SparseRows, diag: &[f64], r: &[f64], x: &mut [f64], free: &[bool], upper: &[f64], sweeps: usize, subspace_every: usize) -> usize {
     let n = diag.len();
     // At most about NNLS_WORK multiply-adds, counted as a sweep that moves every
     // coordinate (the solution starts from the current values, so repeated solves go on
-    // converging); below that the sweep limit is the caller's.
+    // converging), a subspace step as the passes over the matrix it makes; below that the
+    // sweep limit is the caller's.
     let sweep_work = (rows.nnz() + n).max(1) as f64;
-    let sweeps = sweeps.min((NNLS_WORK / sweep_work) as usize).max(50);
+    let passes = sweeps.min((NNLS_WORK / sweep_work) as usize).max(50);
     let mut grad: Vec<f64> = (0..n).map(|j| r[j] - rows.row(j).map(|(l, gjl)| gjl * x[l]).sum::<f64>()).collect();
-    for _ in 0..sweeps {
+    let mut subspace = Subspace::default();
+    let (mut spent, mut sweep) = (0, 0);
+    while spent < passes {
+        if subspace_every > 0 && sweep > 0 && sweep % subspace_every == 0 {
+            spent += subspace.step(rows, diag, &mut grad, x, free, upper);
+        }
+        sweep += 1;
+        spent += 1;
         let mut change = 0.0f64;
         let mut scale = 0.0f64;
         for j in 0..n {
@@ -428,6 +466,124 @@ fn nnls_cd_rows(rows: &SparseRows, diag: &[f64], r: &[f64], x: &mut [f64], free:
         if change <= 1e-10 * scale.max(1e-300) {
             break;
         }
+    }
+    sweep
+}
+
+/// The subspace step's working vectors (full length, zero off the subspace).
+#[derive(Default)]
+struct Subspace {
+    /// The coordinates strictly inside their bounds.
+    inside: Vec<usize>,
+    /// The step.
+    d: Vec<f64>,
+    /// Conjugate gradients' residual, preconditioned residual, direction and `G p`.
+    res: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+}
+
+impl Subspace {
+    /// One Newton step on the free coordinates strictly inside their bounds, the others
+    /// held: `G_FF d = grad_F` (`grad = r - Gx`, the objective's descent direction) by
+    /// Jacobi-preconditioned conjugate gradients, then `x += t d` with `t` the line's
+    /// minimum `d'grad / d'Gd`, cut at the first bound it would cross (that coordinate
+    /// lands on its bound). Conjugate gradients from zero on a convex quadratic give
+    /// `d'grad > 0`, so the objective never rises: where it could (a singular subspace, a
+    /// non-positive curvature from rounding) no step is taken. Keeps `grad` up to date.
+    /// Returns the passes over the matrix it made.
+    fn step(&mut self, rows: &SparseRows, diag: &[f64], grad: &mut [f64], x: &mut [f64], free: &[bool], upper: &[f64]) -> usize {
+        let n = diag.len();
+        self.inside.clear();
+        self.inside.extend((0..n).filter(|&j| free[j] && diag[j] > 0.0 && x[j] > 0.0 && x[j] < upper[j]));
+        let f = &self.inside;
+        if f.is_empty() {
+            return 0;
+        }
+        for v in [&mut self.d, &mut self.res, &mut self.z, &mut self.p, &mut self.q] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        for &j in f {
+            self.res[j] = grad[j];
+            self.z[j] = grad[j] / diag[j];
+            self.p[j] = self.z[j];
+        }
+        let r0: f64 = f.iter().map(|&j| self.res[j] * self.res[j]).sum();
+        if !(r0 > 0.0 && r0.is_finite()) {
+            return 0;
+        }
+        let mut rz: f64 = f.iter().map(|&j| self.res[j] * self.z[j]).sum();
+        let mut passes = 1;
+        for _ in 0..CG_ITERATIONS {
+            // `p` is zero off the subspace: whole rows give `G_FF p`.
+            let mut pq = 0.0;
+            for &j in f {
+                let qj: f64 = rows.row(j).map(|(l, g)| g * self.p[l]).sum();
+                self.q[j] = qj;
+                pq += self.p[j] * qj;
+            }
+            passes += 1;
+            if !(pq > 0.0) {
+                break;
+            }
+            let alpha = rz / pq;
+            let (mut rr, mut rz_next) = (0.0, 0.0);
+            for &j in f {
+                self.d[j] += alpha * self.p[j];
+                self.res[j] -= alpha * self.q[j];
+                self.z[j] = self.res[j] / diag[j];
+                rr += self.res[j] * self.res[j];
+                rz_next += self.res[j] * self.z[j];
+            }
+            if rr <= CG_TOL * CG_TOL * r0 || !(rz > 0.0) {
+                break;
+            }
+            let beta = rz_next / rz;
+            rz = rz_next;
+            for &j in f {
+                self.p[j] = self.z[j] + beta * self.p[j];
+            }
+        }
+        // `G d` on every row (`grad` moves by it), the line's minimum, the first bound.
+        self.q.iter_mut().for_each(|v| *v = 0.0);
+        for &j in f {
+            let dj = self.d[j];
+            if dj != 0.0 {
+                for (l, g) in rows.row(j) {
+                    self.q[l] += g * dj;
+                }
+            }
+        }
+        let slope: f64 = f.iter().map(|&j| self.d[j] * grad[j]).sum();
+        let curvature: f64 = f.iter().map(|&j| self.d[j] * self.q[j]).sum();
+        if !(slope > 0.0 && curvature > 0.0) {
+            return passes;
+        }
+        let mut t = slope / curvature;
+        let mut first_bound = None;
+        for &j in f {
+            let dj = self.d[j];
+            let room = if dj < 0.0 { x[j] / -dj } else if dj > 0.0 { (upper[j] - x[j]) / dj } else { f64::INFINITY };
+            if room < t {
+                t = room;
+                first_bound = Some((j, if dj < 0.0 { 0.0 } else { upper[j] }));
+            }
+        }
+        if !(t > 0.0 && t.is_finite()) {
+            return passes;
+        }
+        for &j in f {
+            x[j] = (x[j] + t * self.d[j]).max(0.0).min(upper[j]);
+        }
+        if let Some((j, bound)) = first_bound {
+            x[j] = bound;
+        }
+        for (g, q) in grad.iter_mut().zip(&self.q) {
+            *g -= t * q;
+        }
+        passes + 1
     }
 }
 
@@ -1117,6 +1273,107 @@ mod tests {
             assert_eq!(xs.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), xd.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{sweeps} sweeps");
             assert!(xs.iter().zip(&upper).zip(&free).all(|((x, u), f)| !f || (*x >= 0.0 && x <= u)), "a free entry out of its bounds");
             assert!(xs.iter().zip(&x0).zip(&free).any(|((x, x0), f)| *f && x != x0), "nothing moved");
+        }
+    }
+
+    /// `G = A'A` for `n` lights along a corridor of `2n` rows, light `j`'s column on the
+    /// rows within `half` of row `2j`: random entries, or (`smooth`) a bump shared by all,
+    /// so that neighbouring columns are nearly parallel, as a thousand overlapping source
+    /// lights are. Returns `G` dense and a right-hand side pushing some entries below zero.
+    fn corridor(n: usize, half: usize, smooth: bool, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut rng = seed;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let m = 2 * n;
+        let mut a = vec![0.0f64; m * n];
+        for j in 0..n {
+            for i in (2 * j).saturating_sub(half)..(2 * j + half + 1).min(m) {
+                let u = (i as f64 - 2.0 * j as f64) / half as f64;
+                a[i * n + j] = if smooth { (1.0 - u * u) * (1.0 + 0.01 * next()) } else { next() };
+            }
+        }
+        let mut g = vec![0.0f64; n * n];
+        for p in 0..n {
+            for q in 0..n {
+                g[p * n + q] = (0..m).map(|i| a[i * n + p] * a[i * n + q]).sum();
+            }
+        }
+        // The right-hand side of a mostly positive solution, some of it below zero.
+        let truth: Vec<f64> = (0..n).map(|_| next() - 0.2).collect();
+        let r = (0..n).map(|p| (0..n).map(|q| g[p * n + q] * truth[q]).sum()).collect();
+        (g, r)
+    }
+
+    fn objective(g: &[f64], r: &[f64], x: &[f64]) -> f64 {
+        let n = x.len();
+        (0..n).map(|j| 0.5 * x[j] * (0..n).map(|l| g[j * n + l] * x[l]).sum::<f64>() - r[j] * x[j]).sum()
+    }
+
+    /// Nearly parallel columns, some held, some bounded: with the subspace steps the solve
+    /// lands on the minimum the sweeps alone reach (the same objective; the optimality
+    /// conditions hold) in a fifth of their sweeps or less. Fails without the steps (the
+    /// sweep count) or with a step that lands elsewhere.
+    #[test]
+    fn subspace_steps_reach_the_sweeps_minimum_in_a_fraction_of_the_sweeps() {
+        let n = 200;
+        let (g, r) = corridor(n, 24, true, 0x9e37_79b9_7f4a_7c15);
+        let rows = super::SparseRows::of_dense(&g, n);
+        let diag: Vec<f64> = (0..n).map(|j| g[j * n + j]).collect();
+        let free: Vec<bool> = (0..n).map(|j| j % 23 != 0).collect();
+        let upper: Vec<f64> = (0..n).map(|j| if j % 31 == 0 { 0.01 } else { f64::INFINITY }).collect();
+        let x0 = vec![0.1f64; n];
+        let (mut plain, mut fast) = (x0.clone(), x0.clone());
+        let sweeps_plain = super::nnls_cd_rows_with(&rows, &diag, &r, &mut plain, &free, &upper, 1_000_000, 0);
+        let sweeps_fast = super::nnls_cd_rows_with(&rows, &diag, &r, &mut fast, &free, &upper, 1_000_000, super::SUBSPACE_EVERY);
+        let (fp, ff) = (objective(&g, &r, &plain), objective(&g, &r, &fast));
+        assert!(sweeps_plain > 1000, "the case is not hard: {sweeps_plain} sweeps");
+        assert!(sweeps_fast * 5 <= sweeps_plain, "{sweeps_fast} sweeps with the subspace steps against {sweeps_plain} without");
+        assert!((ff - fp).abs() <= 1e-10 * fp.abs(), "objective {ff} against the sweeps' {fp}");
+        // Optimality: a free coordinate inside its bounds has no gradient; one at a bound
+        // one that points out.
+        let scale = (0..n).map(|j| r[j].abs()).fold(0.0, f64::max);
+        for j in (0..n).filter(|&j| free[j]) {
+            let gj = r[j] - (0..n).map(|l| g[j * n + l] * fast[l]).sum::<f64>();
+            let x = fast[j];
+            assert!(x >= 0.0 && x <= upper[j], "{j}: {x} outside its bounds");
+            let ok = if x == 0.0 { gj <= 1e-7 * scale } else if x == upper[j] { gj >= -1e-7 * scale } else { gj.abs() <= 1e-7 * scale };
+            assert!(ok, "{j}: x {x}, descent {gj}");
+        }
+        assert!(fast.iter().zip(&free).zip(&x0).all(|((x, f), x0)| *f || x == x0), "a held coordinate moved");
+    }
+
+    /// A subspace step from any point inside the bounds never raises the objective, stays
+    /// inside the bounds, and leaves the kept gradient equal to `r - Gx` computed afresh.
+    #[test]
+    fn a_subspace_step_never_raises_the_objective() {
+        let n = 120;
+        for (k, (half, smooth)) in [(6, false), (20, true), (40, true)].into_iter().enumerate() {
+            let (g, r) = corridor(n, half, smooth, 0x2545_f491_4f6c_dd1d + k as u64);
+            let rows = super::SparseRows::of_dense(&g, n);
+            let diag: Vec<f64> = (0..n).map(|j| g[j * n + j]).collect();
+            let free: Vec<bool> = (0..n).map(|j| j % 11 != 0).collect();
+            let upper: Vec<f64> = (0..n).map(|j| if j % 7 == 0 { 0.3 } else { f64::INFINITY }).collect();
+            let mut x: Vec<f64> = (0..n).map(|j| if j % 5 == 0 { 0.0 } else { 0.05 + 0.2 * ((j * 37 % 17) as f64 / 17.0) }).collect();
+            let mut step = super::Subspace::default();
+            for round in 0..5 {
+                let mut grad: Vec<f64> = (0..n).map(|j| r[j] - (0..n).map(|l| g[j * n + l] * x[l]).sum::<f64>()).collect();
+                let before = objective(&g, &r, &x);
+                step.step(&rows, &diag, &mut grad, &mut x, &free, &upper);
+                let after = objective(&g, &r, &x);
+                assert!(after <= before, "case {k}, round {round}: {before} -> {after}");
+                assert!(x.iter().zip(&upper).all(|(x, u)| *x >= 0.0 && x <= u), "case {k}: out of the bounds");
+                for j in 0..n {
+                    let fresh = r[j] - (0..n).map(|l| g[j * n + l] * x[l]).sum::<f64>();
+                    assert!((fresh - grad[j]).abs() <= 1e-9 * (1.0 + fresh.abs()), "case {k}, {j}: kept {} against {fresh}", grad[j]);
+                }
+                if round == 0 {
+                    assert!(after < before, "case {k}: the first step did not move");
+                }
+            }
         }
     }
 
