@@ -1234,19 +1234,24 @@ mod tests {
         }
     }
 
+    /// Uniform numbers in [0, 1) from a xorshift generator (`seed` nonzero).
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut rng = seed;
+        move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// Lights along a corridor, each overlapping its neighbours only: a banded Gram
     /// matrix (most entries zero), some lights held, some bounded, some pushed below zero.
     /// The sparse sweep gives the dense sweep's solution to the bit.
     #[test]
     fn the_sparse_sweep_is_the_dense_one_to_the_bit() {
         let n = 300;
-        let mut rng = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         // G = A'A with A's columns supported on a window of rows around each light.
         let m = 2 * n;
         let mut a = vec![0.0f64; m * n];
@@ -1281,13 +1286,7 @@ mod tests {
     /// so that neighbouring columns are nearly parallel, as a thousand overlapping source
     /// lights are. Returns `G` dense and a right-hand side pushing some entries below zero.
     fn corridor(n: usize, half: usize, smooth: bool, seed: u64) -> (Vec<f64>, Vec<f64>) {
-        let mut rng = seed;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(seed);
         let m = 2 * n;
         let mut a = vec![0.0f64; m * n];
         for j in 0..n {
