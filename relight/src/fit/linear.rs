@@ -8,7 +8,8 @@
 //! `0 <= b <= upper` (the intervals' middles; rows held at the minlight floor are left
 //! out, and a censored channel counts with its lower bound as the target where the
 //! current model falls short of it, an active set refitted in rounds) is solved on the
-//! Gram matrix by projected coordinate descent. Columns through a non-local chain (filter, bounce) are run through it one
+//! Gram matrix by projected coordinate descent, with a Newton step on the coordinates
+//! inside their bounds every few sweeps (`Subspace::step`). Columns through a non-local chain (filter, bounce) are run through it one
 //! by one when there are few of them (at most [`DENSE_COLUMNS`]); with more, the chain is
 //! taken as local (dirt only) and the gradient phases finish the fit.
 //!
@@ -414,8 +415,8 @@ fn nnls_cd_rows(rows: &SparseRows, diag: &[f64], r: &[f64], x: &mut [f64], free:
 /// alone): every 5 sweeps 8.6 s, 10: 7.3 s, 20: 6.6 s, 40: 6.3 s, against 15.5 s.
 const SUBSPACE_EVERY: usize = 20;
 
-/// Most conjugate-gradient iterations of a subspace step (30, 60, 120 at 20 sweeps
-/// apart: about the same time; fewer leave more to the sweeps).
+/// Most conjugate-gradient iterations of a subspace step (at 20 sweeps apart, on the
+/// same solves as [`SUBSPACE_EVERY`]'s figures: 30: 6.4 s, 60: 6.6 s, 120: 8.0 s).
 const CG_ITERATIONS: usize = 60;
 
 /// A subspace step's conjugate gradients stop once the residual is this fraction of its
@@ -537,7 +538,8 @@ impl Subspace {
                 rr += self.res[j] * self.res[j];
                 rz_next += self.res[j] * self.z[j];
             }
-            if rr <= CG_TOL * CG_TOL * r0 || !(rz > 0.0) {
+            // `rz_next` is the next step's denominator (positive while the residual is).
+            if rr <= CG_TOL * CG_TOL * r0 || !(rz_next > 0.0) {
                 break;
             }
             let beta = rz_next / rz;
