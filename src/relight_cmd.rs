@@ -360,13 +360,15 @@ pub fn run(a: RelightArgs) -> Result<(), String> {
     if let Some(s) = &rep.subdivision {
         println!("  subdivide {} -> {} vertices in {} rounds (longest edge {:.2}{})", s.vertices_before, s.vertices_after, s.rounds, s.longest_edge, if s.budget_reached { ", vertex budget reached" } else { "" });
     }
+    // The screen shows a clamped texel as stored (rows::look): not a lower bound there.
+    let clamped_as = if rep.look == Look::Game { "intervals at what the screen shows" } else { "lower bounds" };
     if let Some(b) = rep.data_clamp_byte {
-        println!("  data      clamped at byte {b}, not 255 (q3map2's -compensate): colours there are lower bounds");
+        println!("  data      clamped at byte {b}, not 255 (q3map2's -compensate): colours there are {clamped_as}");
     }
     match &rep.luxel {
         Some(l) => {
             println!(
-                "  target    {} luxels ({} censored: lower bounds) and {} vertex-lit vertices; {} sliver triangles without a luxel",
+                "  target    {} luxels ({} censored: {clamped_as}) and {} vertex-lit vertices; {} sliver triangles without a luxel",
                 l.luxels, l.censored, l.vertex_rows, l.triangles_without_luxel
             );
             if l.patch_control_points + l.patch_records_unmatched > 0 {

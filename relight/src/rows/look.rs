@@ -15,7 +15,8 @@
 //! renderer's picture the game's: [`Look::Game`]. `g` is close to `L^2.2` (exactly `L^2.4`
 //! in the curve's upper part, `L` in its linear toe), so the game is darker than the bytes'
 //! light wherever `e < 1`, and cannot show more than `L = 1` (`e >= 1` saturates: those
-//! rows become lower bounds). Measured against the game's own frames in `make render`
+//! rows stay intervals at what the screen shows, since the renderer clamps nothing).
+//! Measured against the game's own frames in `make render`
 //! (tools/game/compare.py).
 
 use serde::Serialize;
@@ -59,11 +60,16 @@ pub fn screen_factor(albedo: f64, l: f64) -> f64 {
 }
 
 /// Rewrites `rows` (built from the lightmaps, [`Look::Lightmap`]) into what the game's
-/// screen shows ([`Look::Game`]): every interval and lower bound `a e` becomes
-/// `a g(a, L(e))`, with one hue clamp per row from the middle of its intervals (the
-/// engine clamps a texel's three channels together). A row whose light the screen
-/// saturates (`max_c e_c > 1`) becomes a lower bound: any model at least that bright
-/// shows the same pixel. Rows without albedo carry no information either way and stay
+/// screen shows ([`Look::Game`]): every interval `a e` becomes `a g(a, L(e))`, with one
+/// hue clamp per row from the middle of its intervals (the engine clamps a texel's three
+/// channels together). No row is a lower bound here, neither one the screen saturates
+/// (`max_c e_c > 1`) nor one whose stored byte sat at the compile's clamp (taken at the
+/// lower end it keeps): the screen shows the stored bytes through the engine's clamp,
+/// whatever light was above them, and the renderer that draws the fitted lights clamps
+/// nothing, so any light the fit put above the clamp would be drawn. As lower bounds they
+/// let oa_dm1's screen fit put two lights 7 units from a dark wall whose lightmap is
+/// saturated (the model 5-10 times the bound on its luxels), drawn by Cycles as bright dots
+/// the game does not show. Rows without albedo carry no information either way and stay
 /// as they are. Recomputes the error's denominator.
 pub fn to_game_screen(rows: &mut Rows) {
     for i in 0..rows.len() {
@@ -73,27 +79,27 @@ pub fn to_game_screen(rows: &mut Rows) {
         }
         // e of each bound (radiance / albedo); channels without albedo have no light to show.
         let e = |v: f32, c: usize| if a[c] > 1e-9 { v as f64 / a[c] } else { 0.0 };
+        // Each channel's stored light as an interval of e: the byte's, or a censored
+        // channel's lower end as a point; `None`: no data in the channel.
         let w = rows.weight[i];
-        let peak_mid = (0..3).filter(|&c| w[c] > 0.0).map(|c| 0.5 * (e(rows.lo[i][c], c) + e(rows.hi[i][c], c))).fold(0.0, f64::max);
-        let peak_lower = (0..3).map(|c| e(rows.lower[i][c], c)).fold(0.0, f64::max);
-        let shown = |v: f64, c: usize, peak: f64| (a[c] * screen_factor(a[c], v / peak.max(1.0))) as f32;
-        let saturated = peak_mid > 1.0;
-        for c in 0..3 {
-            let lower = if rows.lower[i][c] > 0.0 { shown(e(rows.lower[i][c], c), c, peak_lower) } else { 0.0 };
-            if saturated {
-                // The screen shows the clamped colour whatever the light above it.
-                let lo = shown(e(rows.lo[i][c], c), c, peak_mid);
-                rows.lower[i][c] = if w[c] > 0.0 { lo.max(lower) } else { lower };
-                rows.weight[i][c] = 0.0;
-                rows.lo[i][c] = 0.0;
-                rows.hi[i][c] = 0.0;
+        let stored: [Option<(f64, f64)>; 3] = std::array::from_fn(|c| {
+            if w[c] > 0.0 {
+                Some((e(rows.lo[i][c], c), e(rows.hi[i][c], c)))
+            } else if rows.lower[i][c] > 0.0 {
+                let l = e(rows.lower[i][c], c);
+                Some((l, l))
             } else {
-                rows.lower[i][c] = lower;
-                if w[c] > 0.0 {
-                    rows.lo[i][c] = shown(e(rows.lo[i][c], c), c, 1.0);
-                    rows.hi[i][c] = shown(e(rows.hi[i][c], c), c, 1.0).max(rows.lo[i][c]);
-                }
+                None
             }
+        });
+        let peak = stored.iter().flatten().map(|&(lo, hi)| 0.5 * (lo + hi)).fold(0.0, f64::max);
+        let shown = |v: f64, c: usize| (a[c] * screen_factor(a[c], v / peak.max(1.0))) as f32;
+        for (c, s) in stored.iter().enumerate() {
+            let Some((lo, hi)) = *s else { continue };
+            rows.lo[i][c] = shown(lo, c);
+            rows.hi[i][c] = shown(hi, c).max(rows.lo[i][c]);
+            rows.weight[i][c] = 1.0;
+            rows.lower[i][c] = 0.0;
         }
     }
     rows.finish();
@@ -151,14 +157,19 @@ mod tests {
             assert!((rows.lo[0][c] as f64 - a * screen_factor(a, e)).abs() < 1e-6);
             assert!(rows.hi[0][c] >= rows.lo[0][c] && rows.lo[0][c] < before.lo[0][c], "the screen is darker than the light below e = 1");
         }
-        // Saturated: the brightest channel shows 1 (radiance = albedo), the others keep the hue.
-        assert_eq!(rows.weight[1], [0.0; 3]);
+        // Saturated: the brightest channel shows 1 (radiance = albedo), the others keep the
+        // hue; an interval, not a lower bound (the renderer would draw any light above it).
+        assert_eq!(rows.weight[1], [1.0; 3]);
+        assert_eq!(rows.lower[1], [0.0; 3]);
         let mid = |c: usize| 0.5 * (before.lo[1][c] + before.hi[1][c]) as f64 / 0.5;
         let peak = mid(0);
-        assert!((rows.lower[1][1] as f64 - 0.5 * screen_factor(0.5, before.lo[1][1] as f64 / 0.5 / peak)).abs() < 1e-6);
-        assert!(rows.lower[1][0] as f64 > 0.5 * 0.9);
-        // Censored: lower bounds through the same clamp.
-        assert!((rows.lower[2][0] - 0.5).abs() < 1e-6 && (rows.lower[2][2] as f64 - 0.5 * screen_factor(0.5, 0.5)).abs() < 1e-6);
+        assert!((rows.lo[1][1] as f64 - 0.5 * screen_factor(0.5, before.lo[1][1] as f64 / 0.5 / peak)).abs() < 1e-6);
+        assert!(rows.lo[1][0] as f64 > 0.5 * 0.9 && rows.hi[1][0] as f64 <= 0.5 + 1e-6);
+        // Censored at the compile's clamp: its lower end through the same clamp, as a point.
+        assert_eq!(rows.weight[2], [1.0; 3]);
+        assert!((rows.lo[2][0] - 0.5).abs() < 1e-6 && (rows.lo[2][2] as f64 - 0.5 * screen_factor(0.5, 0.5)).abs() < 1e-6);
+        assert_eq!(rows.lo[2], rows.hi[2]);
+        assert!(!rows.any_censored(), "the screen's rows are all intervals");
         assert_eq!(rows.row(3).lo, before.row(3).lo);
         assert!(rows.norm2 > 0.0 && rows.norm2 < before.norm2);
     }
