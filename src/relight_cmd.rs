@@ -30,8 +30,8 @@ pub struct RelightArgs {
     /// mapper's lights; the physics of the map), or `game`, what the game's screen shows
     /// (the engine multiplies the texture's sRGB bytes by the lightmap clamped at 1, and
     /// the screen's transfer function makes that light): a linear renderer such as
-    /// Blender's Cycles, lit by the result, then looks like the game. See README, "Which
-    /// look to fit".
+    /// Blender's Cycles, lit by the result, then looks like the game. See README, "The
+    /// game as the reference", on which look relight fits.
     #[arg(long, default_value = "lightmap", value_parser = ["lightmap", "game"])]
     pub look: String,
     /// Refine the mesh before projecting the target: `lightmap` (no edge longer than one
