@@ -305,16 +305,12 @@ fn dirt_factors_are_q3map2s_own() {
         globals_fit_with(&dir, lit, bsp.to_str().unwrap(), &source, &[common::baseoa(), &fixtures()], &["--dump-rows", dump.to_str().unwrap()]);
         let truth = bsp_lightmaps(&fixtures().join(format!("maps/{debug}.bsp")));
         assert_eq!(truth.len(), 128 * 128 * 3, "{debug}: one page");
-        let text = std::fs::read_to_string(&dump).unwrap();
-        let mut lines = text.lines();
-        let head: Vec<&str> = lines.next().unwrap().split(',').collect();
-        let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
-        let (ctx, cty, cdirt) = (col("tx"), col("ty"), col("dirt"));
+        let rows = common::RowsDump::read(&dump);
+        let (tx, ty, dirt) = (rows.column("tx"), rows.column("ty"), rows.column("dirt"));
         let mut diffs = Vec::new();
-        for line in lines {
-            let f: Vec<&str> = line.split(',').collect();
-            let (x, y): (usize, usize) = (f[ctx].parse().unwrap(), f[cty].parse().unwrap());
-            let ours: f64 = f[cdirt].parse().unwrap();
+        for ((&x, &y), &ours) in tx.iter().zip(&ty).zip(&dirt) {
+            assert!(ours.is_finite(), "{debug}: texel ({x}, {y}) has no dirt factor");
+            let (x, y) = (x as usize, y as usize);
             assert!((1..=128).contains(&x) && (1..=128).contains(&y), "{debug}: texel ({x}, {y}) outside the page");
             let q3 = truth[((y - 1) * 128 + (x - 1)) * 3] as f64 / 255.0;
             assert!(q3 > 0.0, "{debug}: texel ({x}, {y}): q3map2 mapped no luxel there");

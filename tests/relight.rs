@@ -1220,36 +1220,19 @@ fn the_game_look_fits_what_the_screen_shows() {
     // in the game look they are intervals, and the fit stays near them (1.14 times their
     // screen value at the 90th percentile; as lower bounds the model was 5.5 times it, 12
     // times at most, on the sample's 109).
-    let (rows_l, rows_g) = (dumped_rows(&dl), dumped_rows(&dg));
-    assert_eq!(rows_l.len(), rows_g.len());
-    let clamped: Vec<usize> = (0..rows_l.len()).filter(|&i| rows_l[i].hi.iter().any(|h| h.is_nan())).collect();
+    let (rows_l, rows_g) = (common::RowsDump::read(&dl), common::RowsDump::read(&dg));
+    let rgb = |d: &common::RowsDump, what: &str| -> Vec<[f64; 3]> {
+        let [r, g, b] = ["r", "g", "b"].map(|c| d.column(&format!("{what}_{c}")));
+        (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect()
+    };
+    let (hi_l, hi_g, x_g) = (rgb(&rows_l, "hi"), rgb(&rows_g, "hi"), rgb(&rows_g, "x"));
+    assert_eq!(hi_l.len(), hi_g.len(), "the two looks' rows are the same rows");
+    let clamped: Vec<usize> = (0..hi_l.len()).filter(|&i| hi_l[i].iter().any(|h| h.is_nan())).collect();
     assert!(!clamped.is_empty(), "the sample has clamped texels");
-    assert!(rows_g.iter().all(|r| r.hi.iter().all(|h| !h.is_nan())), "a lower bound in the game look");
-    let mut over: Vec<f64> = clamped.iter().map(|&i| rows_g[i].x.iter().copied().fold(0.0, f64::max) / rows_g[i].hi.iter().copied().fold(1e-12, f64::max)).collect();
+    assert!(hi_g.iter().all(|h| h.iter().all(|h| !h.is_nan())), "a lower bound in the game look");
+    let mut over: Vec<f64> = clamped.iter().map(|&i| x_g[i].iter().copied().fold(0.0, f64::max) / hi_g[i].iter().copied().fold(1e-12, f64::max)).collect();
     over.sort_by(f64::total_cmp);
     let p90 = over[over.len() * 9 / 10];
     eprintln!("sample: {} clamped texels, the game look's model over their screen value: 90th percentile {p90:.2}", clamped.len());
     assert!(p90 < 1.5, "the game look's fit overshoots the clamped texels: {p90} at the 90th percentile");
-}
-
-/// One row of `--dump-rows`: the data's upper ends (NaN: a lower bound only) and the model.
-struct DumpedRow {
-    hi: [f64; 3],
-    x: [f64; 3],
-}
-
-fn dumped_rows(path: &Path) -> Vec<DumpedRow> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| head.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
-    let (hi, x) = (["hi_r", "hi_g", "hi_b"].map(col), ["x_r", "x_g", "x_b"].map(col));
-    lines
-        .map(|l| {
-            // The material name is the first field and has no commas (shader paths).
-            let f: Vec<&str> = l.split(',').collect();
-            let v = |k: usize| f[k].parse::<f64>().unwrap_or(f64::NAN);
-            DumpedRow { hi: hi.map(v), x: x.map(v) }
-        })
-        .collect()
 }

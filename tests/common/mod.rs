@@ -118,3 +118,26 @@ pub fn assert_terms_within_allowance(name: &str, report: &serde_json::Value) {
         }
     }
 }
+
+/// The CSV `relight --dump-rows` writes, by column name.
+pub struct RowsDump {
+    head: Vec<String>,
+    rows: Vec<Vec<String>>,
+}
+
+impl RowsDump {
+    pub fn read(path: &Path) -> RowsDump {
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut lines = text.lines();
+        let head = lines.next().unwrap_or_default().split(',').map(str::to_string).collect();
+        // The material name is the first field and has no commas (shader paths).
+        let rows = lines.map(|l| l.split(',').map(str::to_string).collect()).collect();
+        RowsDump { head, rows }
+    }
+
+    /// A column's values, NaN where the field is empty (a lower bound's missing upper end).
+    pub fn column(&self, name: &str) -> Vec<f64> {
+        let k = self.head.iter().position(|h| h == name).unwrap_or_else(|| panic!("no column {name}"));
+        self.rows.iter().map(|r| r.get(k).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN)).collect()
+    }
+}

@@ -68,7 +68,7 @@ pub fn screen_factor(albedo: f64, l: f64) -> f64 {
 /// whatever light was above them, and the renderer that draws the fitted lights clamps
 /// nothing, so any light the fit put above the clamp would be drawn. As lower bounds they
 /// let oa_dm1's screen fit put two lights 7 units from a dark wall whose lightmap is
-/// saturated (the model 5-10 times the bound on its luxels), drawn by Cycles as bright dots
+/// saturated (the model 4 to 9 times the bound on its luxels), drawn by Cycles as bright dots
 /// the game does not show. Rows without albedo carry no information either way and stay
 /// as they are. Recomputes the error's denominator.
 pub fn to_game_screen(rows: &mut Rows) {
@@ -79,17 +79,19 @@ pub fn to_game_screen(rows: &mut Rows) {
         }
         // e of each bound (radiance / albedo); channels without albedo have no light to show.
         let e = |v: f32, c: usize| if a[c] > 1e-9 { v as f64 / a[c] } else { 0.0 };
-        // Each channel's stored light as an interval of e: the byte's, or a censored
-        // channel's lower end as a point; `None`: no data in the channel.
+        // Each channel's stored light as an interval of e: the byte's, a censored
+        // channel's lower end as a point, and a row projected from both (`--target
+        // vertex`: weight `w` of the interval, the rest at the lower end) their blend;
+        // `None`: no data in the channel.
         let w = rows.weight[i];
         let stored: [Option<(f64, f64)>; 3] = std::array::from_fn(|c| {
-            if w[c] > 0.0 {
-                Some((e(rows.lo[i][c], c), e(rows.hi[i][c], c)))
-            } else if rows.lower[i][c] > 0.0 {
-                let l = e(rows.lower[i][c], c);
-                Some((l, l))
-            } else {
-                None
+            let wc = w[c].clamp(0.0, 1.0) as f64;
+            let l = e(rows.lower[i][c], c);
+            match (wc > 0.0, rows.lower[i][c] > 0.0 && wc < 1.0) {
+                (true, true) => Some((wc * e(rows.lo[i][c], c) + (1.0 - wc) * l, wc * e(rows.hi[i][c], c) + (1.0 - wc) * l)),
+                (true, false) => Some((e(rows.lo[i][c], c), e(rows.hi[i][c], c))),
+                (false, true) => Some((l, l)),
+                (false, false) => None,
             }
         });
         let peak = stored.iter().flatten().map(|&(lo, hi)| 0.5 * (lo + hi)).fold(0.0, f64::max);
@@ -148,6 +150,7 @@ mod tests {
         rows.push(row([0.5, 0.5, 0.5], [2.0, 1.0, 0.5], [2.1, 1.05, 0.55])); // the engine clamps: hue kept
         rows.push(Row { weight: [0.0; 3], lo: [0.0; 3], hi: [0.0; 3], lower: [2.0, 2.0, 1.0], ..row([0.5; 3], [0.0; 3], [0.0; 3]) }); // censored
         rows.push(row([0.0; 3], [1.0; 3], [1.1; 3])); // no albedo: untouched
+        rows.push(Row { weight: [0.25; 3], lower: [0.4; 3], ..row([0.5; 3], [0.2; 3], [0.22; 3]) }); // projected from both
         rows.finish();
         let before = rows.clone();
         to_game_screen(&mut rows);
@@ -169,6 +172,10 @@ mod tests {
         assert_eq!(rows.weight[2], [1.0; 3]);
         assert!((rows.lo[2][0] - 0.5).abs() < 1e-6 && (rows.lo[2][2] as f64 - 0.5 * screen_factor(0.5, 0.5)).abs() < 1e-6);
         assert_eq!(rows.lo[2], rows.hi[2]);
+        // Projected from an interval (weight 0.25, e 0.2-0.22) and a clamped rest (e 0.8):
+        // the blend, e 0.65-0.655, through the screen.
+        assert_eq!(rows.weight[4], [1.0; 3]);
+        assert!((rows.lo[4][0] as f64 - 0.5 * screen_factor(0.5, 0.65)).abs() < 1e-6 && (rows.hi[4][0] as f64 - 0.5 * screen_factor(0.5, 0.655)).abs() < 1e-6);
         assert!(!rows.any_censored(), "the screen's rows are all intervals");
         assert_eq!(rows.row(3).lo, before.row(3).lo);
         assert!(rows.norm2 > 0.0 && rows.norm2 < before.norm2);
