@@ -1433,9 +1433,52 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
     let mut current = fit.fit_linear();
     // The lowest error the decisions have reached (what the allowance is counted from).
     let mut lowest = current;
+    // Whether the model stands as screened decisions left it: terms taken out, the rest's
+    // coefficients not refitted since (`current` is then its error as it stands, above
+    // what the refit would reach).
+    let mut stale = false;
     for TermCase { name, choice, set, others, other_gain, describe } in list {
         if fit.out_of_time() {
             break;
+        }
+        // A term the model has on, with one way to be on, decided by the data: screened.
+        // Taken out, the rest's coefficients as they stand, its error bounds the refit's
+        // from above (`fit_linear` never ends above its entry); the fit with it, whose
+        // terms are among those of the last refitted model, lies at or above `lowest`.
+        // So where taking it out stays within `lowest + gain` as it stands, the fits would
+        // have left it out too (neither lower by the gain, nor past the allowance), and
+        // it goes without them; the refit waits for the next decision that needs one.
+        let mut off = fit.model.clone();
+        set(&mut off, &fit.model, false);
+        let mut fitted_off = None;
+        if fit.screen_decisions && choice == Optional::Auto && others.is_empty() && off != fit.model {
+            let vis = fit.vis.clone();
+            let as_it_stands = fit.value_frozen(&off).rel_error;
+            if as_it_stands <= lowest + gain {
+                out.push(TermReport { term: name, kept: false, rel_error_without: as_it_stands, rel_error_with: current, note: "not used: leaving it out, before any refit, keeps the error within the allowance".into() });
+                (current, fit.model, stale) = (as_it_stands, off, true);
+                continue;
+            }
+            fit.vis = vis;
+            if stale {
+                // The fit without it, from the state as it stands; the same bound decides
+                // where it can, else the state with it is refitted to compare.
+                let with = (fit.model.clone(), fit.vis.clone());
+                fit.model = off;
+                let e = fit.fit_linear();
+                if e <= lowest + gain {
+                    out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: current, note: "not used: does not lower the error enough".into() });
+                    (current, lowest, stale) = (e, lowest.min(e), false);
+                    continue;
+                }
+                fitted_off = Some((e, fit.model.clone(), fit.vis.clone()));
+                (fit.model, fit.vis) = with;
+            }
+        }
+        if stale {
+            current = fit.fit_linear();
+            lowest = lowest.min(current);
+            stale = false;
         }
         let entry = fit.model.clone();
         let variant = |set: &Set, on: bool, fit: &mut Fitter| {
@@ -1454,7 +1497,10 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
             out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: f64::NAN, note: "off".into() });
             continue;
         }
-        let without = variant(&set, false, fit);
+        let without = match fitted_off.take() {
+            Some(w) => w,
+            None => variant(&set, false, fit),
+        };
         let mut with = variant(&set, true, fit);
         // The best other way, which replaces the first where it is lower by the gain asked.
         let mut first_on = entry.clone();
@@ -1489,6 +1535,9 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
         out.push(TermReport { term: name, kept: keep, rel_error_without: without.0, rel_error_with: with.0, note });
         let chosen = if keep { with } else { without };
         (current, fit.model, fit.vis) = chosen;
+    }
+    if stale {
+        current = fit.fit_linear();
     }
     // The variants are compared after exact linear fits, which hold censored channels
     // only through an active set and can be worse than what the phases reached: where the decision kept every
@@ -1969,6 +2018,73 @@ mod tests {
         assert!(b.kept && !a.kept, "bounce kept {}, ambient kept {}", b.kept, a.kept);
         assert_eq!((fit.model.bounce.is_some(), fit.model.ambient), (true, None));
         assert!(fit.eval().rel_error < 0.01, "{}", fit.eval().rel_error);
+    }
+
+    /// Five surface lights over the room (synthetic bases, each a different pattern over
+    /// the rows); the data has only the second. The model has all five on, its
+    /// coefficients fitted, as the phases leave it. The terms the model has on and the data
+    /// lacks are taken out as they stand (the first before any refit, the last three after
+    /// the second's exact decision), the second is kept, the ambient fitted last: the same
+    /// decisions as with every term refitted, the same error, and fewer linear fits.
+    #[test]
+    fn terms_taken_out_as_they_stand_are_decided_as_the_refits_decide_them() {
+        use super::{decide_terms, Optional, Options, TermPlan};
+        use crate::backend::Cpu;
+        use crate::fit::Fitter;
+        use crate::model::{surface, Light, Model};
+        use glam::Vec3;
+        let (mesh, mut rows) = crate::testutil::room(6);
+        let n = rows.len();
+        let bvh = crate::trace::bvh::Bvh::build(&mesh);
+        let (lo, hi) = mesh.bounds();
+        let groups = 5;
+        let mut bases = crate::model::Bases::default();
+        bases.surfaces.groups = (0..groups)
+            .map(|g| surface::Group { name: format!("g{g}"), materials: Vec::new(), source_rgb: [1.0; 3], patches: 1, area_m2: 1.0, q3map2_meshes: 0, meshes_unmatched: 0 })
+            .collect();
+        bases.surfaces.offsets.push(0);
+        for i in 0..n {
+            for g in 0..groups {
+                // Group g reaches every (g + 2)th row, more or less brightly.
+                if (i + g) % (g + 2) == 0 {
+                    bases.surfaces.entries.push((g as u32, 0.2 + 0.1 * ((i * (g + 3)) % 7) as f32));
+                }
+            }
+            bases.surfaces.offsets.push(bases.surfaces.entries.len() as u32);
+        }
+        let lights = vec![Light::point(Vec3::new(1.1, 1.7, 0.9), [2.0; 3]), Light::point(Vec3::new(2.6, 2.4, 2.2), [0.7, 1.2, 1.9])];
+        let mut present = vec![None; groups];
+        present[1] = Some([0.9, 0.8, 0.7]);
+        let truth = Model { lights, surfaces: present, ..Model::default() };
+        crate::testutil::data_from_model(&mut rows, &bases, &bvh, &truth, 1e-3);
+        let plan = TermPlan { sun: Optional::Off, sky: Optional::Off, surfaces: Optional::Auto, bounce: Optional::Off, bounces: 0, dirt: Optional::Off, dirt_sets: Vec::new(), filter: Optional::Off, fast_area: false, fast_bounce: false };
+        let decide = |screen: bool| {
+            let mut cpu = Cpu::new(&rows, &bvh);
+            let mut fit = Fitter::new(&rows, &bases, &bvh, &mut cpu, lo, hi);
+            fit.locked = vec![false; 2];
+            fit.screen_decisions = screen;
+            // The lights a little off where the data's are, as a fit leaves them: the
+            // error is not zero, and the surface lights the data lacks make up a little.
+            let lights = truth.lights.iter().map(|l| Light { pos: l.pos + Vec3::new(0.03, -0.02, 0.025), ..*l }).collect();
+            fit.model = Model { lights, surfaces: vec![Some([0.3; 3]); groups], ..truth.clone() };
+            fit.fit_linear();
+            let before = fit.linear_fits;
+            let mut reports = Vec::new();
+            decide_terms(&mut fit, &plan, &Options::default(), super::TERM_GAIN, &mut reports);
+            let kept: Vec<(String, bool)> = reports.iter().map(|r| (r.term.clone(), r.kept)).collect();
+            let on: Vec<bool> = fit.model.surfaces.iter().map(Option::is_some).collect();
+            let notes: Vec<String> = reports.iter().map(|r| r.note.clone()).collect();
+            (kept, on, fit.eval().rel_error, fit.linear_fits - before, notes)
+        };
+        let (kept_ref, on_ref, e_ref, fits_ref, _) = decide(false);
+        let (kept, on, e, fits, notes) = decide(true);
+        assert_eq!(on_ref, [false, true, false, false, false], "the reference keeps the data's surface light only: {kept_ref:?}");
+        assert_eq!(kept, kept_ref, "the screened decisions differ from the refitted ones");
+        assert_eq!(on, on_ref);
+        assert!(e.is_finite() && (e - e_ref).abs() <= 1e-6 * e_ref, "the screened decisions end at {e}, the refitted at {e_ref}");
+        let screened = notes.iter().filter(|n| n.contains("before any refit")).count();
+        assert_eq!(screened, 4, "the four surface lights the data lacks are taken out as they stand: {notes:?}");
+        assert!(fits < fits_ref, "screening saves fits: {fits} against {fits_ref}");
     }
 
     use super::light_names;

@@ -743,6 +743,7 @@ impl Fitter<'_> {
     /// [`DENSE_COLUMNS`] columns, the non-local chain), so it can land above the entry
     /// state under the full objective; then the entry state is kept.
     pub fn fit_linear(&mut self) -> f64 {
+        self.linear_fits += 1;
         self.refresh_visibility();
         if self.failure.is_some() {
             return f64::NAN;

@@ -134,6 +134,12 @@ pub struct Fitter<'a> {
     /// Most solves of a linear fit that takes the chain as local
     /// ([`linear::CHAIN_ROUNDS`]; 1: the one local solve).
     pub chain_rounds: usize,
+    /// The terms' decisions (`pipeline::decide_terms`) take a term the model has on out
+    /// without a refit where the error as it stands already decides (a refit can only
+    /// lower it). Off: every decision refitted (the tests' reference).
+    pub screen_decisions: bool,
+    /// How many times [`Fitter::fit_linear`] ran.
+    pub linear_fits: usize,
     /// The linear fit's recent light columns through the non-local chain, by their
     /// whole input ([`linear::ColumnCache`]).
     columns: linear::ColumnCache,
@@ -184,6 +190,8 @@ impl<'a> Fitter<'a> {
             frozen_emitters: false,
             frozen_minlight: false,
             chain_rounds: linear::CHAIN_ROUNDS,
+            screen_decisions: true,
+            linear_fits: 0,
             kind_scales: false,
             columns: linear::ColumnCache::default(),
             boxes: visibility::WordBoxes::of(rows),
