@@ -1467,7 +1467,7 @@ fn decide_terms(fit: &mut Fitter, terms: &TermPlan, opts: &Options, gain: f64, o
                 fit.model = off;
                 let e = fit.fit_linear();
                 if e <= lowest + gain {
-                    out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: current, note: "not used: does not lower the error enough".into() });
+                    out.push(TermReport { term: name, kept: false, rel_error_without: e, rel_error_with: current, note: "not used: leaving it out, refitted, keeps the error within the allowance (with it: as it stands, before a refit)".into() });
                     (current, lowest, stale) = (e, lowest.min(e), false);
                     continue;
                 }
