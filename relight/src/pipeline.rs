@@ -415,6 +415,12 @@ pub struct Report {
     /// Shadow rays traced (`--estimator model`) or light paths started (`tracing`).
     pub rays_traced: u64,
     pub evaluations: usize,
+    /// Exact linear refits run (`Fitter::fit_linear`: the terms' decisions, pruning's and
+    /// merging's tries, the final state).
+    pub linear_fits: usize,
+    /// Pruning's single tries decided from a failure it remembered, without a refit
+    /// (`Fitter::prune`).
+    pub prune_singles_skipped: usize,
     /// Seconds per stage, in order.
     pub stage_times_s: Vec<(String, f64)>,
     pub total_time_s: f64,
@@ -1196,6 +1202,7 @@ fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
     history.iter_mut().for_each(|r| r.placement = true);
     history.extend(fit.history.iter().cloned());
     let evaluations = fit.evaluations;
+    let (linear_fits, prune_singles_skipped) = (fit.linear_fits, fit.singles_skipped);
     let rays = fit.backend.rays_traced().unwrap_or(fit.vis.rays);
     drop(fit);
     progress.stage("write");
@@ -1319,6 +1326,8 @@ fn run_on_worker(opts: &Options, progress: &dyn Progress) -> Result<Report> {
         iterations: history,
         rays_traced: rays,
         evaluations,
+        linear_fits,
+        prune_singles_skipped,
         stage_times_s: st.list,
         total_time_s: t_all.elapsed().as_secs_f64(),
         skipped_primitives: scene.skipped,

@@ -140,6 +140,12 @@ pub struct Fitter<'a> {
     pub screen_decisions: bool,
     /// How many times [`Fitter::fit_linear`] ran.
     pub linear_fits: usize,
+    /// Pruning does not refit a light's removal alone again while the error that removal
+    /// reached when it failed lies above the bound ([`Fitter::prune`]). Off: every
+    /// single try refitted (the tests' reference).
+    pub remember_failed_singles: bool,
+    /// How many single tries pruning decided from a failure it remembered, without a refit.
+    pub singles_skipped: usize,
     /// The linear fit's recent light columns through the non-local chain, by their
     /// whole input ([`linear::ColumnCache`]).
     columns: linear::ColumnCache,
@@ -192,6 +198,8 @@ impl<'a> Fitter<'a> {
             chain_rounds: linear::CHAIN_ROUNDS,
             screen_decisions: true,
             linear_fits: 0,
+            remember_failed_singles: true,
+            singles_skipped: 0,
             kind_scales: false,
             columns: linear::ColumnCache::default(),
             boxes: visibility::WordBoxes::of(rows),
